@@ -1,0 +1,1 @@
+//! The source papers' experiments, reproducible from the command line.

@@ -1,0 +1,594 @@
+//! Spring forces and energy, and the quasi-static relaxation that settles the skin.
+#![doc = include_str!("README.md")]
+
+mod kernels;
+mod reorder;
+
+pub use reorder::morton_order;
+
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::mesh::TriMesh;
+use kernels::{CHUNK, Frame, dot, weighted_dot};
+
+/// One spring as seen from one of its ends: 12 bytes, stored twice per edge in CSR order.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[repr(C)]
+pub struct Spring {
+    /// The vertex at the other end (internal index).
+    pub other: u32,
+    /// Stiffness, N/m.
+    pub k: f32,
+    /// Rest length, m.
+    pub rest: f32,
+}
+
+/// A per-vertex anchor spring towards a target, stiffer along the body normal than across it:
+/// skin slides along the body more easily than it leaves it.
+///
+/// Energy: `½ k_n ((x−t)·n)² + ½ k_t |(x−t) − ((x−t)·n) n|²`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct VertexAnchor {
+    /// Where the vertex wants to be.
+    pub target: Vec3,
+    /// Unit body normal at the target (any unit vector when `k_normal == k_tangent`).
+    pub normal: Vec3,
+    /// Stiffness along the normal, N/m.
+    pub k_normal: f32,
+    /// Stiffness in the tangent plane, N/m.
+    pub k_tangent: f32,
+}
+
+impl VertexAnchor {
+    #[inline]
+    fn force_energy(&self, x: Vec3) -> (Vec3, f64) {
+        let d = x - self.target;
+        let dn = d.dot(self.normal);
+        let dt = d - self.normal * dn;
+        let force = -(self.normal * (self.k_normal * dn) + dt * self.k_tangent);
+        let energy = 0.5 * (self.k_normal as f64 * (dn as f64).powi(2))
+            + 0.5 * self.k_tangent as f64 * dt.as_dvec3().length_squared();
+        (force, energy)
+    }
+
+    #[inline]
+    fn curvature(&self, u: Vec3) -> f32 {
+        let un = u.dot(self.normal);
+        self.k_normal * un * un + self.k_tangent * (u.length_squared() - un * un).max(0.0)
+    }
+}
+
+/// What acts on the mesh besides its springs, in the caller's vertex order. All optional.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Loads<'a> {
+    /// External force per vertex, N.
+    pub forces: Option<&'a [Vec3]>,
+    /// `true` for vertices held where they are.
+    pub pinned: Option<&'a [bool]>,
+    /// Anchor spring per vertex.
+    pub anchors: Option<&'a [VertexAnchor]>,
+}
+
+/// A constraint applied after each accepted step (the collision issue's sliding contact).
+///
+/// `x` is in the system's internal order; `order[i]` is the caller's index of internal vertex
+/// `i`. Return `true` if any vertex moved, which restarts the conjugate directions.
+pub trait Projection {
+    /// Projects `x` onto the admissible set.
+    fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool;
+}
+
+/// Iteration budget and tolerance of a relaxation.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RelaxConfig {
+    /// Stop after this many iterations even if not converged.
+    pub max_iterations: u32,
+    /// Converged when `|net force| <= tolerance * force_scale` (Euclidean norms over the free
+    /// vertices).
+    pub tolerance: f32,
+    /// The force the residual is measured against, N. `None`: the norm of the external forces,
+    /// or, when there are none, the norm of the net force at the start of the solve.
+    pub force_scale: Option<f32>,
+    /// Record the energy after every iteration in [`RelaxReport::energy_history`].
+    pub record_energy: bool,
+}
+
+impl RelaxConfig {
+    /// 500 iterations, relative residual 1e-4.
+    pub const DEFAULT: Self = Self {
+        max_iterations: 500,
+        tolerance: 1e-4,
+        force_scale: None,
+        record_energy: false,
+    };
+}
+
+impl Default for RelaxConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Why a relaxation stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StopReason {
+    /// The residual fell under the tolerance.
+    Converged,
+    /// The iteration budget was spent.
+    Budget,
+    /// No step along the search direction lowers the energy any more: the answer is as exact
+    /// as f32 positions allow.
+    Stalled,
+}
+
+/// What a relaxation did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RelaxReport {
+    /// Iterations taken (accepted steps).
+    pub iterations: u32,
+    /// Final relative residual `|net force| / force_scale`.
+    pub residual: f32,
+    /// Final total energy (springs + anchors − work of external forces), J.
+    pub energy: f64,
+    /// Why it stopped.
+    pub stop: StopReason,
+    /// The force scale the residual was measured against, N.
+    pub force_scale: f32,
+    /// Energy after each iteration (first entry: before the first), if asked for.
+    #[serde(skip_serializing_if = "Vec::is_empty", default)]
+    pub energy_history: Vec<f64>,
+}
+
+impl RelaxReport {
+    /// `true` when the tolerance was met.
+    pub fn converged(&self) -> bool {
+        self.stop == StopReason::Converged
+    }
+}
+
+/// Why a spring system could not be built or relaxed.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum SolverError {
+    /// An input array does not have one entry per vertex (or edge).
+    #[error("{what} has {given} entries, expected {expected}")]
+    Length {
+        /// Which input.
+        what: &'static str,
+        /// Entries given.
+        given: usize,
+        /// Entries expected.
+        expected: usize,
+    },
+    /// An edge names a vertex that does not exist or joins a vertex to itself.
+    #[error("edge {edge} ({a}, {b}) is invalid for {vertex_count} vertices")]
+    BadEdge {
+        /// Edge index.
+        edge: usize,
+        /// First vertex.
+        a: u32,
+        /// Second vertex.
+        b: u32,
+        /// Vertex count.
+        vertex_count: usize,
+    },
+    /// A stiffness or rest length is negative or not finite.
+    #[error("edge {edge} has stiffness {k} and rest length {rest}; both must be finite and >= 0")]
+    BadSpring {
+        /// Edge index.
+        edge: usize,
+        /// Its stiffness.
+        k: f32,
+        /// Its rest length.
+        rest: f32,
+    },
+    /// A position, force or anchor is NaN or infinite.
+    #[error("{what} of vertex {vertex} is not finite")]
+    NonFinite {
+        /// Which input.
+        what: &'static str,
+        /// The caller's vertex index.
+        vertex: usize,
+    },
+}
+
+/// A spring mesh ready to relax: CSR springs in a locality-friendly internal vertex order.
+///
+/// Vertices are renumbered along a Morton curve of their rest positions when the system is
+/// built (a shuffled input runs as fast as a well-ordered one); every public method takes and
+/// returns data in the caller's order.
+///
+/// ```
+/// use dermis::prelude::*;
+/// use dermis::solver::Loads;
+/// use glam::Vec3;
+/// // One spring of rest length 1 and stiffness 100 N/m, pinned at vertex 0, pulled by 2 N.
+/// let rest = vec![Vec3::ZERO, Vec3::X];
+/// let system = SpringSystem::new(&rest, &[[0, 1]], &[100.0], &[1.0]).unwrap();
+/// let mut x = rest.clone();
+/// let forces = [Vec3::ZERO, Vec3::new(2.0, 0.0, 0.0)];
+/// let pinned = [true, false];
+/// let loads = Loads { forces: Some(&forces), pinned: Some(&pinned), ..Default::default() };
+/// let report = system.relax(&mut x, &loads, &RelaxConfig::default()).unwrap();
+/// assert!(report.converged());
+/// assert!((x[1].x - 1.02).abs() < 1e-5); // stretch = f / k
+/// ```
+#[derive(Debug, Clone)]
+pub struct SpringSystem {
+    order: Vec<u32>,
+    rank: Vec<u32>,
+    offsets: Vec<u32>,
+    springs: Vec<Spring>,
+    edge_count: usize,
+}
+
+impl SpringSystem {
+    /// Builds the system for `edges` with per-edge `stiffness` and `rest_lengths`.
+    /// `positions` (one per vertex) only decide the internal vertex order.
+    pub fn new(
+        positions: &[Vec3],
+        edges: &[[u32; 2]],
+        stiffness: &[f32],
+        rest_lengths: &[f32],
+    ) -> Result<Self, SolverError> {
+        let n = positions.len();
+        check_len("stiffness", stiffness.len(), edges.len())?;
+        check_len("rest lengths", rest_lengths.len(), edges.len())?;
+        check_finite("position", positions)?;
+        for (e, &[a, b]) in edges.iter().enumerate() {
+            if a as usize >= n || b as usize >= n || a == b {
+                return Err(SolverError::BadEdge {
+                    edge: e,
+                    a,
+                    b,
+                    vertex_count: n,
+                });
+            }
+            let (k, rest) = (stiffness[e], rest_lengths[e]);
+            if !(k.is_finite() && k >= 0.0 && rest.is_finite() && rest >= 0.0) {
+                return Err(SolverError::BadSpring { edge: e, k, rest });
+            }
+        }
+        let order = morton_order(positions);
+        let mut rank = vec![0u32; n];
+        for (i, &o) in order.iter().enumerate() {
+            rank[o as usize] = i as u32;
+        }
+        let mut degree = vec![0u32; n + 1];
+        for &[a, b] in edges {
+            degree[rank[a as usize] as usize + 1] += 1;
+            degree[rank[b as usize] as usize + 1] += 1;
+        }
+        for i in 0..n {
+            degree[i + 1] += degree[i];
+        }
+        let offsets = degree;
+        let mut fill = offsets.clone();
+        let mut springs = vec![
+            Spring {
+                other: 0,
+                k: 0.0,
+                rest: 0.0
+            };
+            edges.len() * 2
+        ];
+        for (e, &[a, b]) in edges.iter().enumerate() {
+            let (ra, rb) = (rank[a as usize], rank[b as usize]);
+            for (from, to) in [(ra, rb), (rb, ra)] {
+                let slot = &mut fill[from as usize];
+                springs[*slot as usize] = Spring {
+                    other: to,
+                    k: stiffness[e],
+                    rest: rest_lengths[e],
+                };
+                *slot += 1;
+            }
+        }
+        for i in 0..n {
+            springs[offsets[i] as usize..offsets[i + 1] as usize].sort_by_key(|s| s.other);
+        }
+        Ok(Self {
+            order,
+            rank,
+            offsets,
+            springs,
+            edge_count: edges.len(),
+        })
+    }
+
+    /// The system of a mesh's edges at their rest lengths, with the given per-edge stiffness
+    /// (from [`StiffnessRule::edge_stiffness`](crate::stiffness::StiffnessRule::edge_stiffness)).
+    pub fn from_mesh(mesh: &TriMesh, stiffness: &[f32]) -> Result<Self, SolverError> {
+        Self::new(
+            mesh.positions(),
+            mesh.topology().edges(),
+            stiffness,
+            &mesh.edge_lengths(),
+        )
+    }
+
+    /// Number of vertices.
+    pub fn vertex_count(&self) -> usize {
+        self.order.len()
+    }
+    /// Number of springs (edges).
+    pub fn edge_count(&self) -> usize {
+        self.edge_count
+    }
+    /// Internal order: `order()[i]` is the caller's index of internal vertex `i`.
+    pub fn order(&self) -> &[u32] {
+        &self.order
+    }
+    /// Bytes of spring data per vertex (CSR offsets and two 12-byte half-springs per edge).
+    pub fn bytes_per_vertex(&self) -> f64 {
+        let bytes = self.offsets.len() * 4 + self.springs.len() * std::mem::size_of::<Spring>();
+        bytes as f64 / self.vertex_count().max(1) as f64
+    }
+
+    fn to_internal<T: Copy + Send + Sync>(&self, data: &[T]) -> Vec<T> {
+        self.order.par_iter().map(|&o| data[o as usize]).collect()
+    }
+
+    fn to_caller<T: Copy + Send + Sync>(&self, internal: &[T], out: &mut [T]) {
+        out.par_iter_mut()
+            .zip(self.rank.par_iter())
+            .for_each(|(o, &r)| *o = internal[r as usize]);
+    }
+
+    fn frame<'a>(
+        &'a self,
+        external: Option<&'a [Vec3]>,
+        pinned: &'a [bool],
+        anchors: Option<&'a [VertexAnchor]>,
+    ) -> Frame<'a> {
+        Frame {
+            offsets: &self.offsets,
+            springs: &self.springs,
+            external,
+            pinned,
+            anchors,
+        }
+    }
+
+    /// Spring forces on every vertex at positions `x` (caller's order), with no loads.
+    pub fn spring_forces(&self, x: &[Vec3]) -> Result<Vec<Vec3>, SolverError> {
+        check_len("positions", x.len(), self.vertex_count())?;
+        let xi = self.to_internal(x);
+        let pinned = vec![false; xi.len()];
+        let mut f = vec![Vec3::ZERO; xi.len()];
+        self.frame(None, &pinned, None).force_energy(&xi, &mut f);
+        let mut out = vec![Vec3::ZERO; xi.len()];
+        self.to_caller(&f, &mut out);
+        Ok(out)
+    }
+
+    /// Elastic energy of the springs at positions `x` (caller's order), J.
+    pub fn spring_energy(&self, x: &[Vec3]) -> Result<f64, SolverError> {
+        check_len("positions", x.len(), self.vertex_count())?;
+        let xi = self.to_internal(x);
+        let pinned = vec![false; xi.len()];
+        let mut f = vec![Vec3::ZERO; xi.len()];
+        Ok(self.frame(None, &pinned, None).force_energy(&xi, &mut f))
+    }
+
+    /// Moves `x` (caller's order; the warm start) to the equilibrium of the springs under
+    /// `loads`, by Jacobi-preconditioned nonlinear conjugate gradients on the total energy.
+    ///
+    /// Every accepted step lowers the energy (a backtracking line search rejects any that does
+    /// not), so the energy never rises from one iteration to the next.
+    pub fn relax(
+        &self,
+        x: &mut [Vec3],
+        loads: &Loads<'_>,
+        config: &RelaxConfig,
+    ) -> Result<RelaxReport, SolverError> {
+        self.relax_projected(x, loads, config, None)
+    }
+
+    /// [`relax`](Self::relax) with a constraint projection after every accepted step. A
+    /// projection may raise the energy: the monotone-energy guarantee holds between projections.
+    pub fn relax_projected(
+        &self,
+        x: &mut [Vec3],
+        loads: &Loads<'_>,
+        config: &RelaxConfig,
+        mut projection: Option<&mut dyn Projection>,
+    ) -> Result<RelaxReport, SolverError> {
+        let n = self.vertex_count();
+        check_len("positions", x.len(), n)?;
+        check_finite("position", x)?;
+        if let Some(f) = loads.forces {
+            check_len("forces", f.len(), n)?;
+            check_finite("force", f)?;
+        }
+        if let Some(p) = loads.pinned {
+            check_len("pinned", p.len(), n)?;
+        }
+        if let Some(a) = loads.anchors {
+            check_len("anchors", a.len(), n)?;
+            if let Some(v) = a.iter().position(|a| {
+                !(a.target.is_finite()
+                    && a.normal.is_finite()
+                    && a.k_normal.is_finite()
+                    && a.k_tangent.is_finite())
+            }) {
+                return Err(SolverError::NonFinite {
+                    what: "anchor",
+                    vertex: v,
+                });
+            }
+        }
+        let external = loads.forces.map(|f| self.to_internal(f));
+        let pinned = match loads.pinned {
+            Some(p) => self.to_internal(p),
+            None => vec![false; n],
+        };
+        let anchors = loads.anchors.map(|a| self.to_internal(a));
+        let frame = self.frame(external.as_deref(), &pinned, anchors.as_deref());
+        let mut xi = self.to_internal(x);
+
+        let inv_diag = frame.inverse_diagonal(n);
+        let mut r = vec![Vec3::ZERO; n];
+        let mut energy = frame.force_energy(&xi, &mut r);
+        let external_norm = external.as_deref().map_or(0.0, |f| {
+            let free: Vec<Vec3> = f
+                .iter()
+                .zip(&pinned)
+                .map(|(f, p)| if *p { Vec3::ZERO } else { *f })
+                .collect();
+            dot(&free, &free).sqrt()
+        });
+        let mut r_norm = dot(&r, &r).sqrt();
+        let scale = config
+            .force_scale
+            .map(f64::from)
+            .unwrap_or(if external_norm > 0.0 {
+                external_norm
+            } else {
+                r_norm
+            });
+        let mut history = Vec::new();
+        if config.record_energy {
+            history.push(energy);
+        }
+        let report = |iterations, r_norm: f64, energy, stop, history| RelaxReport {
+            iterations,
+            residual: if scale > 0.0 {
+                (r_norm / scale) as f32
+            } else {
+                0.0
+            },
+            energy,
+            stop,
+            force_scale: scale as f32,
+            energy_history: history,
+        };
+        let converged = |r_norm: f64| r_norm <= config.tolerance as f64 * scale;
+
+        let precondition = |r: &[Vec3], z: &mut [Vec3]| {
+            z.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
+                for (o, z) in chunk.iter_mut().enumerate() {
+                    let i = c * CHUNK + o;
+                    *z = r[i] * inv_diag[i];
+                }
+            });
+        };
+        let mut z = vec![Vec3::ZERO; n];
+        precondition(&r, &mut z);
+        let mut d = z.clone();
+        let mut rz = weighted_dot(&r, &r, &inv_diag);
+        let mut trial = vec![Vec3::ZERO; n];
+        let mut r_trial = vec![Vec3::ZERO; n];
+        let mut iterations = 0;
+        let mut stop = StopReason::Budget;
+        while iterations < config.max_iterations {
+            if converged(r_norm) {
+                stop = StopReason::Converged;
+                break;
+            }
+            let slope = dot(&r, &d); // −dE/dα at α = 0, positive for a descent direction
+            if slope <= 0.0 {
+                // Not a descent direction: restart with steepest (preconditioned) descent.
+                d.copy_from_slice(&z);
+                if rz <= 0.0 {
+                    stop = StopReason::Stalled;
+                    break;
+                }
+                continue;
+            }
+            let curvature = frame.curvature(&xi, &d);
+            let mut alpha = if curvature > 0.0 {
+                slope / curvature
+            } else {
+                1.0
+            };
+            let mut accepted = false;
+            for _ in 0..30 {
+                let a = alpha as f32;
+                trial
+                    .par_chunks_mut(CHUNK)
+                    .enumerate()
+                    .for_each(|(c, chunk)| {
+                        for (o, t) in chunk.iter_mut().enumerate() {
+                            let i = c * CHUNK + o;
+                            *t = xi[i] + d[i] * a;
+                        }
+                    });
+                let e = frame.force_energy(&trial, &mut r_trial);
+                if e <= energy && trial != xi {
+                    energy = e;
+                    accepted = true;
+                    break;
+                }
+                alpha *= 0.5;
+            }
+            if !accepted {
+                stop = StopReason::Stalled;
+                break;
+            }
+            std::mem::swap(&mut xi, &mut trial);
+            std::mem::swap(&mut r, &mut r_trial);
+            iterations += 1;
+            let mut restart = false;
+            if let Some(p) = projection.as_deref_mut()
+                && p.project(&mut xi, &self.order)
+            {
+                energy = frame.force_energy(&xi, &mut r);
+                restart = true;
+            }
+            if config.record_energy {
+                history.push(energy);
+            }
+            r_norm = dot(&r, &r).sqrt();
+            // Polak-Ribière+, preconditioned.
+            let z_old = std::mem::take(&mut z);
+            z = vec![Vec3::ZERO; n];
+            precondition(&r, &mut z);
+            let rz_new = weighted_dot(&r, &r, &inv_diag);
+            let beta = if restart || rz <= 0.0 {
+                0.0
+            } else {
+                ((rz_new - dot(&r, &z_old)) / rz).max(0.0)
+            };
+            rz = rz_new;
+            let b = beta as f32;
+            d.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
+                for (o, d) in chunk.iter_mut().enumerate() {
+                    let i = c * CHUNK + o;
+                    *d = z[i] + *d * b;
+                }
+            });
+        }
+        if stop == StopReason::Budget && converged(r_norm) {
+            stop = StopReason::Converged;
+        }
+        self.to_caller(&xi, x);
+        Ok(report(iterations, r_norm, energy, stop, history))
+    }
+}
+
+fn check_len(what: &'static str, given: usize, expected: usize) -> Result<(), SolverError> {
+    if given == expected {
+        Ok(())
+    } else {
+        Err(SolverError::Length {
+            what,
+            given,
+            expected,
+        })
+    }
+}
+
+fn check_finite(what: &'static str, v: &[Vec3]) -> Result<(), SolverError> {
+    match v.iter().position(|p| !p.is_finite()) {
+        Some(vertex) => Err(SolverError::NonFinite { what, vertex }),
+        None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests;

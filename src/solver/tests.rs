@@ -1,0 +1,216 @@
+use glam::{Quat, Vec3};
+
+use super::*;
+use crate::stiffness::{Modulus, StiffnessRule};
+
+/// A bumpy 3D grid sheet, `n` x `n` vertices.
+pub(crate) fn sheet(n: u32) -> TriMesh {
+    let mut p = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let (x, y) = (i as f32 / (n - 1) as f32, j as f32 / (n - 1) as f32);
+            p.push(Vec3::new(
+                x + 0.01 * (7.0 * y).sin(),
+                y,
+                0.05 * (3.0 * x).sin(),
+            ));
+        }
+    }
+    let mut t = Vec::new();
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let a = j * n + i;
+            t.push([a, a + 1, a + n + 1]);
+            t.push([a, a + n + 1, a + n]);
+        }
+    }
+    TriMesh::new(p, t).unwrap()
+}
+
+fn system(mesh: &TriMesh) -> SpringSystem {
+    let k = StiffnessRule::AreaOverLengthSquared
+        .edge_stiffness(mesh, &Modulus::Uniform(1000.0))
+        .unwrap();
+    SpringSystem::from_mesh(mesh, &k).unwrap()
+}
+
+#[test]
+fn rigid_motion_of_rest_mesh_gives_zero_force() {
+    let mesh = sheet(12);
+    let s = system(&mesh);
+    let q = Quat::from_axis_angle(Vec3::new(1.0, 2.0, -0.5).normalize(), 1.1);
+    let moved: Vec<Vec3> = mesh
+        .positions()
+        .iter()
+        .map(|p| q * *p + Vec3::new(3.0, -1.0, 2.0))
+        .collect();
+    let f = s.spring_forces(&moved).unwrap();
+    let max = f.iter().map(|f| f.length()).fold(0.0, f32::max);
+    // Compare against the force a 1% stretch produces.
+    let stretched: Vec<Vec3> = mesh.positions().iter().map(|p| *p * 1.01).collect();
+    let typical = s
+        .spring_forces(&stretched)
+        .unwrap()
+        .iter()
+        .map(|f| f.length())
+        .fold(0.0, f32::max);
+    assert!(
+        max < 1e-3 * typical,
+        "rigid motion force {max} vs 1% stretch {typical}"
+    );
+    assert!(s.spring_energy(&moved).unwrap() < 1e-6 * s.spring_energy(&stretched).unwrap());
+}
+
+#[test]
+fn energy_never_rises_during_relaxation() {
+    let mesh = sheet(16);
+    let s = system(&mesh);
+    // A large, messy deformation with a few pins and anchors.
+    let mut x: Vec<Vec3> = mesh
+        .positions()
+        .iter()
+        .enumerate()
+        .map(|(i, p)| *p * 1.3 + Vec3::new(0.0, 0.0, 0.2 * ((i * 37 % 11) as f32 / 11.0 - 0.5)))
+        .collect();
+    let mut pinned = vec![false; x.len()];
+    pinned[0] = true;
+    pinned[15] = true;
+    let anchors: Vec<VertexAnchor> = mesh
+        .positions()
+        .iter()
+        .map(|p| VertexAnchor {
+            target: *p,
+            normal: Vec3::Z,
+            k_normal: 50.0,
+            k_tangent: 5.0,
+        })
+        .collect();
+    let forces = vec![Vec3::new(0.0, 0.0, -0.01); x.len()];
+    let loads = Loads {
+        forces: Some(&forces),
+        pinned: Some(&pinned),
+        anchors: Some(&anchors),
+    };
+    let cfg = RelaxConfig {
+        max_iterations: 300,
+        tolerance: 1e-6,
+        record_energy: true,
+        ..RelaxConfig::DEFAULT
+    };
+    let report = s.relax(&mut x, &loads, &cfg).unwrap();
+    assert!(report.energy_history.len() > 20);
+    for w in report.energy_history.windows(2) {
+        assert!(w[1] <= w[0], "energy rose from {} to {}", w[0], w[1]);
+    }
+    assert!(report.energy_history[0] > 10.0 * report.energy);
+    // Pinned vertices did not move.
+    assert_eq!(
+        x[0],
+        mesh.positions()[0] * 1.3 + Vec3::new(0.0, 0.0, 0.2 * (0.0 / 11.0 - 0.5))
+    );
+}
+
+#[test]
+fn chain_under_load_matches_series_springs() {
+    // Five springs in series along x, pinned at 0, pulled at the end: each stretches by f/k_i.
+    let rest: Vec<Vec3> = (0..6)
+        .map(|i| Vec3::new(i as f32 * 0.1, 0.0, 0.0))
+        .collect();
+    let edges: Vec<[u32; 2]> = (0..5).map(|i| [i, i + 1]).collect();
+    let k = [100.0, 200.0, 50.0, 400.0, 80.0];
+    let s = SpringSystem::new(&rest, &edges, &k, &[0.1; 5]).unwrap();
+    let mut x = rest.clone();
+    let mut f = vec![Vec3::ZERO; 6];
+    f[5] = Vec3::new(1.5, 0.0, 0.0);
+    let mut pinned = vec![false; 6];
+    pinned[0] = true;
+    let loads = Loads {
+        forces: Some(&f),
+        pinned: Some(&pinned),
+        ..Default::default()
+    };
+    let report = s
+        .relax(
+            &mut x,
+            &loads,
+            &RelaxConfig {
+                tolerance: 1e-5,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    assert!(report.converged(), "{report:?}");
+    let expected: f32 = 0.5 + k.iter().map(|k| 1.5 / k).sum::<f32>();
+    assert!((x[5].x - expected).abs() < 1e-5, "{} vs {expected}", x[5].x);
+}
+
+#[test]
+fn result_does_not_depend_on_input_vertex_order() {
+    let mesh = sheet(10);
+    let n = mesh.positions().len() as u32;
+    // The same mesh with vertices listed in a scrambled order.
+    let perm: Vec<u32> = (0..n).map(|i| (i * 37 + 11) % n).collect();
+    let mut inv = vec![0u32; n as usize];
+    for (new, &old) in perm.iter().enumerate() {
+        inv[old as usize] = new as u32;
+    }
+    let p2: Vec<Vec3> = perm.iter().map(|&o| mesh.positions()[o as usize]).collect();
+    let t2: Vec<[u32; 3]> = mesh
+        .triangles()
+        .iter()
+        .map(|t| t.map(|v| inv[v as usize]))
+        .collect();
+    let shuffled = TriMesh::new(p2, t2).unwrap();
+    let run = |m: &TriMesh| {
+        let s = system(m);
+        let mut x: Vec<Vec3> = m.positions().iter().map(|p| *p * 1.1).collect();
+        let mut pinned = vec![false; x.len()];
+        let corner = m
+            .positions()
+            .iter()
+            .position(|p| *p == mesh.positions()[0])
+            .unwrap();
+        pinned[corner] = true;
+        let loads = Loads {
+            pinned: Some(&pinned),
+            ..Default::default()
+        };
+        s.relax(
+            &mut x,
+            &loads,
+            &RelaxConfig {
+                tolerance: 1e-5,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        x
+    };
+    let a = run(&mesh);
+    let b = run(&shuffled);
+    for (new, &old) in perm.iter().enumerate() {
+        assert!((a[old as usize] - b[new]).length() < 1e-4);
+    }
+}
+
+#[test]
+fn bad_inputs_are_errors() {
+    let rest = vec![Vec3::ZERO, Vec3::X];
+    assert!(matches!(
+        SpringSystem::new(&rest, &[[0, 2]], &[1.0], &[1.0]),
+        Err(SolverError::BadEdge { edge: 0, .. })
+    ));
+    assert!(matches!(
+        SpringSystem::new(&rest, &[[0, 1]], &[f32::NAN], &[1.0]),
+        Err(SolverError::BadSpring { edge: 0, .. })
+    ));
+    let s = SpringSystem::new(&rest, &[[0, 1]], &[1.0], &[1.0]).unwrap();
+    let mut x = vec![Vec3::ZERO, Vec3::new(f32::NAN, 0.0, 0.0)];
+    assert_eq!(
+        s.relax(&mut x, &Loads::default(), &RelaxConfig::default()),
+        Err(SolverError::NonFinite {
+            what: "position",
+            vertex: 1
+        })
+    );
+}
