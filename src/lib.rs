@@ -4,7 +4,7 @@
 //! into elastic equilibrium every animation frame.
 //!
 //! The crate is a pure core (plain structs and functions, usable without any ECS) under a thin
-//! bevy_ecs layer. Units are SI throughout: metres, newtons, seconds; the 2D Young's modulus
+//! `bevy_ecs` layer. Units are SI throughout: metres, newtons, seconds; the 2D Young's modulus
 //! `E2` is in N/m.
 //!
 //! | module | what it holds |

@@ -2,9 +2,10 @@
 //! tetrahedral topology and a quality report, all validated with [`TopologyError`].
 
 mod quality;
+pub mod shapes;
 mod tet;
 
-pub use quality::MeshQuality;
+pub use quality::{MeshQuality, NEAR_DEGENERATE_ANGLE_DEG};
 pub use tet::TetMesh;
 
 use glam::Vec3;
@@ -66,6 +67,14 @@ pub enum TopologyError {
         b: u32,
         /// The first triangle found beyond the second.
         element: usize,
+    },
+    /// New positions do not have one entry per vertex of the mesh.
+    #[error("{given} positions given for a mesh of {expected} vertices")]
+    VertexCount {
+        /// Positions given.
+        given: usize,
+        /// Vertices in the mesh.
+        expected: usize,
     },
     /// The mesh has more vertices or elements than 32-bit indices can address.
     #[error("the mesh is too large for 32-bit indices")]
@@ -327,7 +336,7 @@ impl TriMesh {
                 .length_squared()
                 .max((c - b).length_squared())
                 .max((a - c).length_squared());
-            if !(area2 * 0.5 > DEGENERATE_AREA_RATIO * longest) {
+            if area2.is_nan() || area2 * 0.5 <= DEGENERATE_AREA_RATIO * longest {
                 return Err(TopologyError::Degenerate { element: t });
             }
         }
@@ -366,14 +375,16 @@ impl TriMesh {
     pub fn quality(&self) -> MeshQuality {
         MeshQuality::of(self)
     }
-    /// Replaces the positions (same count), keeping the topology; validates finiteness only.
+    /// Replaces the positions (same count), keeping the topology; validates the count and
+    /// finiteness only.
     pub fn with_positions(mut self, positions: Vec<Vec3>) -> Result<Self, TopologyError> {
+        if positions.len() != self.positions.len() {
+            return Err(TopologyError::VertexCount {
+                given: positions.len(),
+                expected: self.positions.len(),
+            });
+        }
         check_finite(&positions)?;
-        assert_eq!(
-            positions.len(),
-            self.positions.len(),
-            "vertex count changed"
-        );
         self.positions = positions;
         Ok(self)
     }

@@ -44,7 +44,7 @@ impl TetMesh {
                 .iter()
                 .map(|e| e.length())
                 .fold(0.0f32, f32::max);
-            if !(vol > super::DEGENERATE_AREA_RATIO * longest.powi(3)) {
+            if vol.is_nan() || vol <= super::DEGENERATE_AREA_RATIO * longest.powi(3) {
                 return Err(TopologyError::Degenerate { element: t });
             }
         }

@@ -43,7 +43,10 @@ impl Frame<'_> {
                             force += d * (s.k * stretch / len);
                         }
                         // Each spring is seen from both ends: a quarter here, a quarter there.
-                        let st = len as f64 - s.rest as f64;
+                        // In f64 from exact differences, so the line search can still see energy
+                        // changes far below the f32 rounding of the length.
+                        let st = (x[s.other as usize].as_dvec3() - xi.as_dvec3()).length()
+                            - s.rest as f64;
                         energy += 0.25 * s.k as f64 * st * st;
                     }
                     if let Some(a) = self.anchors {
@@ -129,7 +132,7 @@ pub(crate) fn dot(a: &[Vec3], b: &[Vec3]) -> f64 {
     partial.iter().sum()
 }
 
-/// Deterministic Σ w_i (a_i · b_i).
+/// Deterministic `Σ w_i (a_i · b_i)`.
 pub(crate) fn weighted_dot(a: &[Vec3], b: &[Vec3], w: &[f32]) -> f64 {
     let partial: Vec<f64> = a
         .par_chunks(CHUNK)

@@ -49,8 +49,12 @@ impl VertexAnchor {
         let dn = d.dot(self.normal);
         let dt = d - self.normal * dn;
         let force = -(self.normal * (self.k_normal * dn) + dt * self.k_tangent);
-        let energy = 0.5 * (self.k_normal as f64 * (dn as f64).powi(2))
-            + 0.5 * self.k_tangent as f64 * dt.as_dvec3().length_squared();
+        // Energy in f64 from the exact difference, for the line search's sake.
+        let d64 = x.as_dvec3() - self.target.as_dvec3();
+        let n64 = self.normal.as_dvec3();
+        let dn64 = d64.dot(n64);
+        let energy = 0.5 * self.k_normal as f64 * dn64 * dn64
+            + 0.5 * self.k_tangent as f64 * (d64 - n64 * dn64).length_squared();
         (force, energy)
     }
 
@@ -378,8 +382,9 @@ impl SpringSystem {
     /// Moves `x` (caller's order; the warm start) to the equilibrium of the springs under
     /// `loads`, by Jacobi-preconditioned nonlinear conjugate gradients on the total energy.
     ///
-    /// Every accepted step lowers the energy (a backtracking line search rejects any that does
-    /// not), so the energy never rises from one iteration to the next.
+    /// Every accepted step strictly lowers the energy (a backtracking line search rejects any
+    /// that does not), so the energy never rises from one iteration to the next; when no step
+    /// can lower it any more the solve stops as [`StopReason::Stalled`].
     pub fn relax(
         &self,
         x: &mut [Vec3],
@@ -519,7 +524,7 @@ impl SpringSystem {
                         }
                     });
                 let e = frame.force_energy(&trial, &mut r_trial);
-                if e <= energy && trial != xi {
+                if e < energy {
                     energy = e;
                     accepted = true;
                     break;

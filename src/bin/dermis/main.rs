@@ -1,5 +1,8 @@
 //! The `dermis` command line: see `dermis --help`.
 
+mod equilibrium;
+mod paper;
+
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -13,9 +16,28 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Equilibrium of a spring mesh (or the FEM membrane) under point forces and pins.
+    Equilibrium(equilibrium::Args),
+    /// Reproduce the source papers' experiments.
+    #[command(subcommand)]
+    Paper(paper::Experiment),
+}
+
+/// A command's failure: printed as `error: ...`, exit code 1.
+type CliResult = Result<(), Box<dyn std::error::Error>>;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    match cli.command {}
+    let result = match cli.command {
+        Command::Equilibrium(args) => equilibrium::run(args),
+        Command::Paper(experiment) => paper::run(experiment),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
 }
