@@ -1,0 +1,273 @@
+//! The dermis systems: stiffness, spring rebuild, relaxation with the non-finite guard.
+
+use bevy_ecs::prelude::*;
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::components::*;
+use crate::solver::{Loads, RelaxConfig, SolverError, SpringSystem};
+
+/// The strain the characteristic force of a skin is measured at (1 %): see
+/// [`characteristic_force_n`].
+pub const REFERENCE_STRAIN: f32 = 0.01;
+
+/// Recomputes [`EdgeStiffness`] for the skins whose [`RestGeometry`] or [`SkinMaterial`] changed
+/// since this system last ran (every skin on its first frame). Skins that did not change are not
+/// visited at all. Errors (a bad modulus, say) are recorded in
+/// [`RelaxDiagnostics::stiffness_error`] and leave the previous stiffness in place.
+pub fn compute_edge_stiffness(
+    mut skins: Query<
+        (
+            &RestGeometry,
+            &SkinMaterial,
+            &mut EdgeStiffness,
+            &mut RelaxDiagnostics,
+        ),
+        Or<(Changed<RestGeometry>, Changed<SkinMaterial>)>,
+    >,
+) {
+    for (rest, material, mut stiffness, mut diagnostics) in &mut skins {
+        match material
+            .stiffness_rule
+            .edge_stiffness(rest.mesh(), &material.youngs_2d_n_per_m)
+        {
+            Ok(k) => {
+                // Unchanged values do not trigger a spring rebuild.
+                if stiffness.k_n_per_m != k {
+                    stiffness.k_n_per_m = k;
+                }
+                diagnostics.stiffness_updates += 1;
+                diagnostics.stiffness_error = None;
+            }
+            Err(e) => diagnostics.stiffness_error = Some(e.into()),
+        }
+    }
+}
+
+/// Rebuilds the cached [`SkinSprings`] of the skins whose [`EdgeStiffness`] or
+/// [`RestGeometry`] changed (and of newly spawned skins). A failure keeps the previous springs
+/// and is recorded in [`RelaxDiagnostics::springs_error`].
+pub fn rebuild_springs(
+    mut skins: Query<
+        (
+            &RestGeometry,
+            &EdgeStiffness,
+            &mut SkinSprings,
+            &mut RelaxDiagnostics,
+        ),
+        Or<(
+            Changed<EdgeStiffness>,
+            Changed<RestGeometry>,
+            Added<SkinSprings>,
+        )>,
+    >,
+) {
+    for (rest, stiffness, mut springs, mut diagnostics) in &mut skins {
+        let k = &stiffness.k_n_per_m;
+        match SpringSystem::new(
+            rest.positions(),
+            rest.mesh().topology().edges(),
+            k,
+            rest.edge_lengths_m(),
+        ) {
+            Ok(system) => {
+                springs.system = Some(system);
+                springs.spring_scale_sq = k.iter().map(|&k| f64::from(k).powi(2)).sum();
+                diagnostics.spring_rebuilds += 1;
+                diagnostics.springs_error = None;
+            }
+            Err(e) => diagnostics.springs_error = Some(e.into()),
+        }
+    }
+}
+
+/// The force a skin's residual is measured against when [`RelaxSettings::force_scale_n`] is
+/// `None`, N.
+///
+/// `REFERENCE_STRAIN · L̄ · sqrt(Σ_edges k² + Σ_vertices max(k_normal, k_tangent)²)`: the norm of
+/// the spring and anchor forces a displacement of 1 % of the mean edge length `L̄` produces, so a
+/// relative tolerance `tol` stops when the leftover force is that of a `tol` % strain. It does
+/// not depend on how far the anchors moved this frame (a still frame is not asked to polish
+/// round-off), and it is raised to the norm of the external forces on free vertices when those
+/// are larger.
+pub fn characteristic_force_n(
+    springs: &SkinSprings,
+    rest: &RestGeometry,
+    anchors: Option<&SkinAnchors>,
+    loads: Option<&ExternalLoads>,
+) -> f32 {
+    let anchor_sq: f64 = anchors.map_or(0.0, |a| {
+        a.iter()
+            .map(|a| f64::from(a.k_normal.max(a.k_tangent)).powi(2))
+            .sum()
+    });
+    let stiffness = (springs.spring_scale_sq + anchor_sq).sqrt();
+    let characteristic = f64::from(REFERENCE_STRAIN * rest.mean_edge_length_m()) * stiffness;
+    let external: f64 = loads.map_or(0.0, |l| {
+        l.forces_n
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| !l.pinned.get(i).copied().unwrap_or(false))
+            .map(|(_, f)| f.as_dvec3().length_squared())
+            .sum::<f64>()
+            .sqrt()
+    });
+    characteristic.max(external) as f32
+}
+
+/// The query item of [`relax_skins`].
+type RelaxItem<'a> = (
+    Entity,
+    &'a SkinSprings,
+    &'a RestGeometry,
+    Mut<'a, SkinPositions>,
+    Mut<'a, LastValidPositions>,
+    Option<&'a SkinAnchors>,
+    Option<&'a ExternalLoads>,
+    Option<&'a RelaxSettings>,
+    Mut<'a, RelaxDiagnostics>,
+);
+
+/// Relaxes every skin to equilibrium under its anchors and loads, warm-started from its current
+/// [`SkinPositions`], with the budget of its [`RelaxSettings`] (else [`DermisConfig::relax`]).
+///
+/// Skins are independent and solved in parallel (rayon); each solve is itself bit-identical for
+/// any thread count, so the result is too. Non-finite positions, anchors or forces, or a
+/// non-finite result, quarantine the skin: it is rolled back to its [`LastValidPositions`], the
+/// event goes to its [`RelaxDiagnostics`] and to [`Messages<SkinQuarantined>`], and the other
+/// skins are unaffected.
+pub fn relax_skins(
+    config: Res<DermisConfig>,
+    mut skins: Query<(
+        Entity,
+        &SkinSprings,
+        &RestGeometry,
+        &mut SkinPositions,
+        &mut LastValidPositions,
+        Option<&SkinAnchors>,
+        Option<&ExternalLoads>,
+        Option<&RelaxSettings>,
+        &mut RelaxDiagnostics,
+    )>,
+    mut quarantined: MessageWriter<SkinQuarantined>,
+) {
+    let default = config.relax;
+    let mut items: Vec<RelaxItem<'_>> = skins.iter_mut().collect();
+    let events: Vec<Vec<SkinQuarantined>> = items
+        .par_iter_mut()
+        .map(|item| relax_one(item, &default))
+        .collect();
+    quarantined.write_batch(events.into_iter().flatten());
+}
+
+fn first_non_finite(x: &[Vec3]) -> Option<usize> {
+    x.iter().position(|p| !p.is_finite())
+}
+
+fn relax_one(item: &mut RelaxItem<'_>, default: &RelaxSettings) -> Vec<SkinQuarantined> {
+    let (entity, springs, rest, positions, last_valid, anchors, loads, settings, diagnostics) =
+        item;
+    let diagnostics = &mut **diagnostics;
+    diagnostics.frames += 1;
+    diagnostics.quarantined.clear();
+    diagnostics.stop = None;
+    diagnostics.iterations = 0;
+    let frame = diagnostics.frames;
+    let mut events = Vec::new();
+    let mut quarantine = |input, vertex, diagnostics: &mut RelaxDiagnostics| {
+        let event = SkinQuarantined {
+            skin: *entity,
+            vertex,
+            input,
+            frame,
+        };
+        diagnostics.quarantined.push(event);
+        diagnostics.quarantine_total += 1;
+        events.push(event);
+    };
+
+    // The chokepoint: nothing non-finite reaches the solver.
+    if let Some(v) = first_non_finite(positions) {
+        if positions.len() == last_valid.len() {
+            positions.copy_from_slice(last_valid);
+        }
+        quarantine(NonFiniteInput::Position, v, diagnostics);
+    }
+    let bad_anchor = anchors.and_then(|a| {
+        a.iter().position(|a| {
+            !(a.target.is_finite()
+                && a.normal.is_finite()
+                && a.k_normal.is_finite()
+                && a.k_tangent.is_finite())
+        })
+    });
+    // Positions were rolled back above and can be solved from; bad anchors or forces cannot.
+    let mut blocked = false;
+    if let Some(v) = bad_anchor {
+        quarantine(NonFiniteInput::Anchor, v, diagnostics);
+        blocked = true;
+    }
+    if let Some(v) = loads.and_then(|l| first_non_finite(&l.forces_n)) {
+        quarantine(NonFiniteInput::Force, v, diagnostics);
+        blocked = true;
+    }
+    let Some(system) = springs.system().filter(|_| !blocked) else {
+        return events;
+    };
+
+    let settings = settings.copied().unwrap_or(*default);
+    let config = RelaxConfig {
+        max_iterations: settings.max_iterations,
+        tolerance: settings.tolerance,
+        force_scale: Some(settings.force_scale_n.unwrap_or_else(|| {
+            characteristic_force_n(springs, rest, anchors.as_deref(), loads.as_deref())
+        })),
+        record_energy: false,
+    };
+    let solver_loads = Loads {
+        forces: loads
+            .filter(|l| !l.forces_n.is_empty())
+            .map(|l| l.forces_n.as_slice()),
+        pinned: loads
+            .filter(|l| !l.pinned.is_empty())
+            .map(|l| l.pinned.as_slice()),
+        anchors: anchors.filter(|a| !a.is_empty()).map(|a| &a.0[..]),
+    };
+    let x = &mut positions.bypass_change_detection().0;
+    match system.relax(x, &solver_loads, &config) {
+        Ok(report) => {
+            if let Some(v) = first_non_finite(x) {
+                x.copy_from_slice(last_valid);
+                quarantine(NonFiniteInput::Result, v, diagnostics);
+            } else {
+                last_valid.0.copy_from_slice(x);
+                diagnostics.iterations = report.iterations;
+                diagnostics.residual = report.residual;
+                diagnostics.force_scale_n = report.force_scale;
+                diagnostics.energy_j = report.energy;
+                diagnostics.stop = Some(report.stop);
+                diagnostics.solve_error = None;
+            }
+            if report.iterations > 0 {
+                positions.set_changed();
+            }
+        }
+        Err(SolverError::NonFinite { what, vertex }) => {
+            let input = match what {
+                "anchor" => NonFiniteInput::Anchor,
+                "force" => NonFiniteInput::Force,
+                _ => NonFiniteInput::Position,
+            };
+            quarantine(input, vertex, diagnostics);
+        }
+        Err(e) => diagnostics.solve_error = Some(e.into()),
+    }
+    events
+}
+
+/// Swaps the [`Messages<SkinQuarantined>`] buffers once a frame. Only used on a standalone
+/// `World` ([`DermisPlugin::add_to`](super::DermisPlugin::add_to)); a Bevy `App` does this in
+/// its own `First` schedule.
+pub fn update_skin_messages(mut messages: ResMut<Messages<SkinQuarantined>>) {
+    messages.update();
+}
