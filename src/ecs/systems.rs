@@ -7,9 +7,8 @@ use rayon::prelude::*;
 use super::components::*;
 use crate::solver::{Loads, RelaxConfig, SolverError, SpringSystem};
 
-/// The strain the characteristic force of a skin is measured at (1 %): see
-/// [`characteristic_force_n`].
-pub const REFERENCE_STRAIN: f32 = 0.01;
+/// The strain the characteristic force of a skin is measured at (10 %): see [`force_scale_n`].
+pub const REFERENCE_STRAIN: f32 = 0.1;
 
 /// Recomputes [`EdgeStiffness`] for the skins whose [`RestGeometry`] or [`SkinMaterial`] changed
 /// since this system last ran (every skin on its first frame). Skins that did not change are not
@@ -73,6 +72,12 @@ pub fn rebuild_springs(
             Ok(system) => {
                 springs.system = Some(system);
                 springs.spring_scale_sq = k.iter().map(|&k| f64::from(k).powi(2)).sum();
+                let mut vertex_k = vec![0.0f64; rest.positions().len()];
+                for (&[a, b], &k) in rest.mesh().topology().edges().iter().zip(k) {
+                    vertex_k[a as usize] += f64::from(k);
+                    vertex_k[b as usize] += f64::from(k);
+                }
+                springs.vertex_k = vertex_k;
                 diagnostics.spring_rebuilds += 1;
                 diagnostics.springs_error = None;
             }
@@ -81,28 +86,37 @@ pub fn rebuild_springs(
     }
 }
 
-/// The force a skin's residual is measured against when [`RelaxSettings::force_scale_n`] is
-/// `None`, N.
+/// The force (N) a skin's residual is measured against when [`RelaxSettings::force_scale_n`]
+/// is `None`: `max(primary, ε · |x|max · |K| / tolerance)`.
 ///
-/// `REFERENCE_STRAIN · L̄ · sqrt(Σ_edges k² + Σ_vertices max(k_normal, k_tangent)²)`: the norm of
-/// the spring and anchor forces a displacement of 1 % of the mean edge length `L̄` produces, so a
-/// relative tolerance `tol` stops when the leftover force is that of a `tol` % strain. It does
-/// not depend on how far the anchors moved this frame (a still frame is not asked to polish
-/// round-off), and it is raised to the norm of the external forces on free vertices when those
-/// are larger.
-pub fn characteristic_force_n(
+/// - `primary` is the norm of the external forces on free vertices when there are any (the
+///   pure solver's convention), else the skin's characteristic force
+///   `REFERENCE_STRAIN · L̄ · sqrt(Σ_edges k² + Σ_vertices max(k_normal, k_tangent)²)`: the norm
+///   of the spring and anchor forces a displacement of 10 % of the mean edge length `L̄`
+///   produces. A relative tolerance `tol` then stops when the leftover force is that of a strain
+///   of about `0.1 · tol`, whatever the anchors did this frame: a still frame takes no
+///   iteration, and a small motion is not polished to round-off.
+/// - The second term is the f32 floor. Positions carry a rounding error of about
+///   `ε·|x|max / 2` (`ε = 1.19e-7`), which leaves a force noise of about that times `|K|`, the
+///   norm over vertices of the summed spring and anchor stiffness at each vertex. The scale is
+///   never so small that `tolerance · scale` falls under twice that noise, so convergence stays
+///   reachable instead of every frame spending its whole budget.
+pub fn force_scale_n(
     springs: &SkinSprings,
     rest: &RestGeometry,
+    positions: &[Vec3],
     anchors: Option<&SkinAnchors>,
     loads: Option<&ExternalLoads>,
+    tolerance: f32,
 ) -> f32 {
-    let anchor_sq: f64 = anchors.map_or(0.0, |a| {
-        a.iter()
-            .map(|a| f64::from(a.k_normal.max(a.k_tangent)).powi(2))
-            .sum()
-    });
-    let stiffness = (springs.spring_scale_sq + anchor_sq).sqrt();
-    let characteristic = f64::from(REFERENCE_STRAIN * rest.mean_edge_length_m()) * stiffness;
+    let anchor_k = |v: usize| {
+        anchors
+            .and_then(|a| a.get(v))
+            .map_or(0.0, |a| f64::from(a.k_normal.max(a.k_tangent)))
+    };
+    let anchor_sq: f64 = (0..springs.vertex_k.len())
+        .map(|v| anchor_k(v).powi(2))
+        .sum();
     let external: f64 = loads.map_or(0.0, |l| {
         l.forces_n
             .iter()
@@ -112,7 +126,25 @@ pub fn characteristic_force_n(
             .sum::<f64>()
             .sqrt()
     });
-    characteristic.max(external) as f32
+    let primary = if external > 0.0 {
+        external
+    } else {
+        f64::from(REFERENCE_STRAIN * rest.mean_edge_length_m())
+            * (springs.spring_scale_sq + anchor_sq).sqrt()
+    };
+    let k_norm = springs
+        .vertex_k
+        .iter()
+        .enumerate()
+        .map(|(v, &k)| (k + anchor_k(v)).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let x_max = positions
+        .iter()
+        .map(|p| p.abs().max_element())
+        .fold(0.0f32, f32::max);
+    let floor = f64::from(f32::EPSILON * x_max) * k_norm / f64::from(tolerance.max(f32::MIN_POSITIVE));
+    primary.max(floor) as f32
 }
 
 /// The query item of [`relax_skins`].
@@ -220,7 +252,14 @@ fn relax_one(item: &mut RelaxItem<'_>, default: &RelaxSettings) -> Vec<SkinQuara
         max_iterations: settings.max_iterations,
         tolerance: settings.tolerance,
         force_scale: Some(settings.force_scale_n.unwrap_or_else(|| {
-            characteristic_force_n(springs, rest, anchors.as_deref(), loads.as_deref())
+            force_scale_n(
+                springs,
+                rest,
+                positions,
+                anchors.as_deref(),
+                loads.as_deref(),
+                settings.tolerance,
+            )
         })),
         record_energy: false,
     };
