@@ -269,7 +269,7 @@ pub struct ExternalLoads {
 /// Iteration budget and tolerance of the per-frame relaxation.
 ///
 /// The global default lives in [`DermisConfig::relax`]; the same type inserted on a skin entity
-/// overrides it for that skin. (In bevy_ecs 0.20 a resource is itself a component stored on a
+/// overrides it for that skin. (In `bevy_ecs` 0.20 a resource is itself a component stored on a
 /// resource entity, so one type cannot be both; the resource wraps this component type instead.)
 #[derive(Component, Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]

@@ -185,12 +185,10 @@ impl SkinBuilder {
         if !self.pinned.is_empty() {
             pinned = vec![false; n];
             for &v in &self.pinned {
-                *pinned
-                    .get_mut(v as usize)
-                    .ok_or(SkinError::PinOutOfRange {
-                        vertex: v,
-                        vertex_count: n,
-                    })? = true;
+                *pinned.get_mut(v as usize).ok_or(SkinError::PinOutOfRange {
+                    vertex: v,
+                    vertex_count: n,
+                })? = true;
             }
         }
         let k = self

@@ -14,6 +14,10 @@ pub const REFERENCE_STRAIN: f32 = 0.1;
 /// since this system last ran (every skin on its first frame). Skins that did not change are not
 /// visited at all. Errors (a bad modulus, say) are recorded in
 /// [`RelaxDiagnostics::stiffness_error`] and leave the previous stiffness in place.
+#[expect(
+    clippy::type_complexity,
+    reason = "the query is spelled out so the reader sees what the system touches"
+)]
 pub fn compute_edge_stiffness(
     mut skins: Query<
         (
@@ -46,6 +50,10 @@ pub fn compute_edge_stiffness(
 /// Rebuilds the cached [`SkinSprings`] of the skins whose [`EdgeStiffness`] or
 /// [`RestGeometry`] changed (and of newly spawned skins). A failure keeps the previous springs
 /// and is recorded in [`RelaxDiagnostics::springs_error`].
+#[expect(
+    clippy::type_complexity,
+    reason = "the query is spelled out so the reader sees what the system touches"
+)]
 pub fn rebuild_springs(
     mut skins: Query<
         (
@@ -143,7 +151,8 @@ pub fn force_scale_n(
         .iter()
         .map(|p| p.abs().max_element())
         .fold(0.0f32, f32::max);
-    let floor = f64::from(f32::EPSILON * x_max) * k_norm / f64::from(tolerance.max(f32::MIN_POSITIVE));
+    let floor =
+        f64::from(f32::EPSILON * x_max) * k_norm / f64::from(tolerance.max(f32::MIN_POSITIVE));
     primary.max(floor) as f32
 }
 
@@ -168,6 +177,10 @@ type RelaxItem<'a> = (
 /// non-finite result, quarantine the skin: it is rolled back to its [`LastValidPositions`], the
 /// event goes to its [`RelaxDiagnostics`] and to [`Messages<SkinQuarantined>`], and the other
 /// skins are unaffected.
+#[expect(
+    clippy::type_complexity,
+    reason = "the query is spelled out so the reader sees what the system touches"
+)]
 pub fn relax_skins(
     config: Res<DermisConfig>,
     mut skins: Query<(

@@ -42,7 +42,10 @@ fn anchored_skin_settles_to_the_pure_solver_equilibrium() {
         schedule.run(&mut world);
     }
     let diag = world.get::<RelaxDiagnostics>(skin).unwrap().clone();
-    assert!(diag.stop.is_some() && diag.quarantined.is_empty(), "{diag:?}");
+    assert!(
+        diag.stop.is_some() && diag.quarantined.is_empty(),
+        "{diag:?}"
+    );
     let ecs = skin_positions(&world, skin).unwrap().to_vec();
 
     // The pure solver, from rest, same anchors at their final targets, much tighter tolerance.

@@ -38,7 +38,11 @@ fn changing_one_material_recomputes_only_that_skins_stiffness() {
     }
     // Frames that change no material or rest geometry do not recompute anything.
     let k_a = world.get::<EdgeStiffness>(a).unwrap().k_n_per_m.clone();
-    let tick_b = world.entity(b).get_ref::<EdgeStiffness>().unwrap().last_changed();
+    let tick_b = world
+        .entity(b)
+        .get_ref::<EdgeStiffness>()
+        .unwrap()
+        .last_changed();
     for _ in 0..3 {
         schedule.run(&mut world);
     }
@@ -76,7 +80,10 @@ fn a_bad_material_is_reported_and_the_old_stiffness_kept() {
         "{d:?}"
     );
     assert_eq!(world.get::<EdgeStiffness>(a).unwrap(), &before);
-    assert!(d.stop.is_some(), "the skin keeps relaxing with its old springs");
+    assert!(
+        d.stop.is_some(),
+        "the skin keeps relaxing with its old springs"
+    );
 }
 
 /// Runs two identical skins for `frames` frames; before frame `at`, `inject` may corrupt skin A.
@@ -123,8 +130,14 @@ fn nan_position_is_quarantined_without_touching_the_other_skin() {
     assert_eq!(quarantine_messages(&world), vec![expected]);
     // Rolled back to the last valid state and solved from there: exactly what the skin does
     // without the NaN. The other skin is bit-identical to the control run.
-    assert_eq!(skin_positions(&world, a).unwrap(), skin_positions(&control, ca).unwrap());
-    assert_eq!(skin_positions(&world, b).unwrap(), skin_positions(&control, cb).unwrap());
+    assert_eq!(
+        skin_positions(&world, a).unwrap(),
+        skin_positions(&control, ca).unwrap()
+    );
+    assert_eq!(
+        skin_positions(&world, b).unwrap(),
+        skin_positions(&control, cb).unwrap()
+    );
     assert!(diagnostics(&world, b).quarantined.is_empty());
 }
 
@@ -140,7 +153,10 @@ fn nan_anchor_rolls_the_skin_back_and_the_next_frames_recover() {
     assert_eq!(d.quarantined[0].input, NonFiniteInput::Anchor);
     assert_eq!(d.stop, None, "no solve ran on bad anchors");
     assert_eq!(skin_positions(&world, a).unwrap(), &a_before[..]);
-    assert_eq!(skin_positions(&world, b).unwrap(), skin_positions(&control, cb).unwrap());
+    assert_eq!(
+        skin_positions(&world, b).unwrap(),
+        skin_positions(&control, cb).unwrap()
+    );
 
     // The animation rewrites the anchor targets but not k_normal: fix it, and the skin goes on.
     world.get_mut::<SkinAnchors>(a).unwrap()[3].k_normal = 40.0;
@@ -185,7 +201,14 @@ fn builder_rejects_bad_input_with_typed_errors() {
         .with_forces(vec![Vec3::ZERO; 3])
         .build()
         .unwrap_err();
-    assert!(matches!(err, SkinError::Length { given: 3, expected: 16, .. }));
+    assert!(matches!(
+        err,
+        SkinError::Length {
+            given: 3,
+            expected: 16,
+            ..
+        }
+    ));
     let err = SkinBuilder::new(
         sheet(4),
         SkinMaterial::default().with_youngs_2d(Modulus::PerElement(vec![1.0; 5])),

@@ -90,6 +90,9 @@ fn the_bevy_app_example_runs_and_relaxes() {
     let diagnostics = bevy_app_example::run(frames);
     assert_eq!(diagnostics.frames, frames as u64);
     assert!(diagnostics.stop.is_some(), "the solve ran: {diagnostics:?}");
-    assert!(diagnostics.residual <= RelaxSettings::DEFAULT.tolerance, "{diagnostics:?}");
+    assert!(
+        diagnostics.residual <= RelaxSettings::DEFAULT.tolerance,
+        "{diagnostics:?}"
+    );
     assert!(diagnostics.quarantined.is_empty());
 }
