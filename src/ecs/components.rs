@@ -367,4 +367,6 @@ pub struct RelaxDiagnostics {
     /// Why the last solve failed for a reason other than a quarantine (cleared by the next
     /// successful solve).
     pub solve_error: Option<SkinError>,
+    /// Whether anchors, loads and a settings override were present at the last solve.
+    pub(crate) present: [bool; 3],
 }

@@ -5,7 +5,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::components::*;
-use crate::solver::{Loads, RelaxConfig, SolverError, SpringSystem};
+use crate::solver::{Loads, RelaxConfig, SolverError, SpringSystem, StopReason};
 
 /// The strain the characteristic force of a skin is measured at (10 %): see [`force_scale_n`].
 pub const REFERENCE_STRAIN: f32 = 0.1;
@@ -159,13 +159,13 @@ pub fn force_scale_n(
 /// The query item of [`relax_skins`].
 type RelaxItem<'a> = (
     Entity,
-    &'a SkinSprings,
-    &'a RestGeometry,
+    Ref<'a, SkinSprings>,
+    Ref<'a, RestGeometry>,
     Mut<'a, SkinPositions>,
     Mut<'a, LastValidPositions>,
-    Option<&'a SkinAnchors>,
-    Option<&'a ExternalLoads>,
-    Option<&'a RelaxSettings>,
+    Option<Ref<'a, SkinAnchors>>,
+    Option<Ref<'a, ExternalLoads>>,
+    Option<Ref<'a, RelaxSettings>>,
     Mut<'a, RelaxDiagnostics>,
 );
 
@@ -177,6 +177,11 @@ type RelaxItem<'a> = (
 /// non-finite result, quarantine the skin: it is rolled back to its [`LastValidPositions`], the
 /// event goes to its [`RelaxDiagnostics`] and to [`Messages<SkinQuarantined>`], and the other
 /// skins are unaffected.
+///
+/// A skin whose last solve converged and whose inputs (positions, anchors, loads, springs, rest
+/// geometry, settings, [`DermisConfig`]) have not changed since is not solved again: the solve
+/// would stop at once with the same answer. Its diagnostics keep the last solve's figures, with
+/// `iterations == 0`.
 #[expect(
     clippy::type_complexity,
     reason = "the query is spelled out so the reader sees what the system touches"
@@ -185,36 +190,60 @@ pub fn relax_skins(
     config: Res<DermisConfig>,
     mut skins: Query<(
         Entity,
-        &SkinSprings,
-        &RestGeometry,
+        Ref<SkinSprings>,
+        Ref<RestGeometry>,
         &mut SkinPositions,
         &mut LastValidPositions,
-        Option<&SkinAnchors>,
-        Option<&ExternalLoads>,
-        Option<&RelaxSettings>,
+        Option<Ref<SkinAnchors>>,
+        Option<Ref<ExternalLoads>>,
+        Option<Ref<RelaxSettings>>,
         &mut RelaxDiagnostics,
     )>,
     mut quarantined: MessageWriter<SkinQuarantined>,
 ) {
     let default = config.relax;
+    let config_changed = config.is_changed();
     let mut items: Vec<RelaxItem<'_>> = skins.iter_mut().collect();
     let events: Vec<Vec<SkinQuarantined>> = items
         .par_iter_mut()
-        .map(|item| relax_one(item, &default))
+        .map(|item| relax_one(item, &default, config_changed))
         .collect();
     quarantined.write_batch(events.into_iter().flatten());
+}
+
+fn changed<T>(c: &Option<Ref<'_, T>>) -> bool {
+    c.as_ref().is_some_and(|c| c.is_changed())
 }
 
 fn first_non_finite(x: &[Vec3]) -> Option<usize> {
     x.iter().position(|p| !p.is_finite())
 }
 
-fn relax_one(item: &mut RelaxItem<'_>, default: &RelaxSettings) -> Vec<SkinQuarantined> {
+fn relax_one(
+    item: &mut RelaxItem<'_>,
+    default: &RelaxSettings,
+    config_changed: bool,
+) -> Vec<SkinQuarantined> {
     let (entity, springs, rest, positions, last_valid, anchors, loads, settings, diagnostics) =
         item;
     let diagnostics = &mut **diagnostics;
     diagnostics.frames += 1;
     diagnostics.quarantined.clear();
+    // Which optional inputs exist: removing one is a change that change detection cannot see.
+    let present = [anchors.is_some(), loads.is_some(), settings.is_some()];
+    let still = !(config_changed
+        || springs.is_changed()
+        || rest.is_changed()
+        || positions.is_changed()
+        || changed(anchors)
+        || changed(loads)
+        || changed(settings))
+        && present == diagnostics.present;
+    diagnostics.present = present;
+    if still && diagnostics.stop == Some(StopReason::Converged) {
+        diagnostics.iterations = 0;
+        return Vec::new();
+    }
     diagnostics.stop = None;
     diagnostics.iterations = 0;
     let frame = diagnostics.frames;
@@ -260,7 +289,7 @@ fn relax_one(item: &mut RelaxItem<'_>, default: &RelaxSettings) -> Vec<SkinQuara
         return events;
     };
 
-    let settings = settings.copied().unwrap_or(*default);
+    let settings = settings.as_deref().copied().unwrap_or(*default);
     let config = RelaxConfig {
         max_iterations: settings.max_iterations,
         tolerance: settings.tolerance,
@@ -276,6 +305,7 @@ fn relax_one(item: &mut RelaxItem<'_>, default: &RelaxSettings) -> Vec<SkinQuara
         })),
         record_energy: false,
     };
+    let loads = loads.as_deref();
     let solver_loads = Loads {
         forces: loads
             .filter(|l| !l.forces_n.is_empty())
@@ -283,7 +313,10 @@ fn relax_one(item: &mut RelaxItem<'_>, default: &RelaxSettings) -> Vec<SkinQuara
         pinned: loads
             .filter(|l| !l.pinned.is_empty())
             .map(|l| l.pinned.as_slice()),
-        anchors: anchors.filter(|a| !a.is_empty()).map(|a| &a.0[..]),
+        anchors: anchors
+            .as_deref()
+            .filter(|a| !a.is_empty())
+            .map(|a| &a.0[..]),
     };
     let x = &mut positions.bypass_change_detection().0;
     match system.relax(x, &solver_loads, &config) {
