@@ -333,7 +333,7 @@ fn relax_one(
                 diagnostics.stop = Some(report.stop);
                 diagnostics.solve_error = None;
             }
-            if report.iterations > 0 {
+            if report.iterations > 0 || !diagnostics.quarantined.is_empty() {
                 positions.set_changed();
             }
         }
