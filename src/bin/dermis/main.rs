@@ -1,5 +1,6 @@
 //! The `dermis` command line: see `dermis --help`.
 
+mod bench;
 mod equilibrium;
 mod paper;
 
@@ -19,6 +20,8 @@ struct Cli {
 enum Command {
     /// Equilibrium of a spring mesh (or the FEM membrane) under point forces and pins.
     Equilibrium(equilibrium::Args),
+    /// Standard performance workloads with an in-run machine calibration.
+    Bench(bench::Args),
     /// Reproduce the source papers' experiments.
     #[command(subcommand)]
     Paper(paper::Experiment),
@@ -30,6 +33,7 @@ type CliResult = Result<(), Box<dyn std::error::Error>>;
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Bench(args) => bench::run(args),
         Command::Equilibrium(args) => equilibrium::run(args),
         Command::Paper(experiment) => paper::run(experiment),
     };
