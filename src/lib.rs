@@ -16,6 +16,7 @@
 //! | [`paper`] | the source paper's experiments, reproducible |
 
 pub mod fem;
+pub mod export;
 pub mod io;
 pub mod mesh;
 pub mod paper;
