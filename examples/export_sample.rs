@@ -13,9 +13,7 @@
 
 use std::path::PathBuf;
 
-use dermis::export::{
-    ExportMeta, ExportOptions, Format, FrameSequence, MeshMeta, MeshRole,
-};
+use dermis::export::{ExportMeta, ExportOptions, Format, FrameSequence, MeshMeta, MeshRole};
 use glam::Vec3;
 
 /// A closed tube along +Y: `rings × segments` vertices plus two cap centres.
@@ -73,7 +71,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             })
             .collect();
         let sway = 0.01 * (std::f32::consts::TAU * phase).sin();
-        let bone = bone_rest.iter().map(|p| *p + Vec3::new(sway, 0.0, 0.0)).collect();
+        let bone = bone_rest
+            .iter()
+            .map(|p| *p + Vec3::new(sway, 0.0, 0.0))
+            .collect();
         seq.push(f, vec![skin, bone]);
     }
     let options = ExportOptions {
@@ -89,7 +90,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         (Format::Ply, out.join("ply/arm.ply")),
     ] {
         let written = seq.write_to(format.sink(&path, &options).as_mut())?;
-        println!("{format}: {} file(s), first {}", written.len(), written[0].display());
+        println!(
+            "{format}: {} file(s), first {}",
+            written.len(),
+            written[0].display()
+        );
     }
     Ok(())
 }

@@ -15,8 +15,8 @@
 //! | [`fem`] | constant-strain membrane FEM, the reference the springs are measured against |
 //! | [`paper`] | the source paper's experiments, reproducible |
 
-pub mod fem;
 pub mod export;
+pub mod fem;
 pub mod io;
 pub mod mesh;
 pub mod paper;

@@ -67,8 +67,9 @@ fn temp_in(dir: &Path) -> Result<NamedTempFile, ExportError> {
 pub(super) fn check_writable(out: &Path) -> Result<(), ExportError> {
     let dir = parent_dir(out);
     let tmp = temp_in(dir)?;
-    tmp.close().map_err(|source| ExportError::UnwritableDirectory {
-        path: dir.to_owned(),
-        source,
-    })
+    tmp.close()
+        .map_err(|source| ExportError::UnwritableDirectory {
+            path: dir.to_owned(),
+            source,
+        })
 }

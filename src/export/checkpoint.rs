@@ -137,7 +137,11 @@ impl Checkpoint {
             let n = usize::try_from(n)
                 .ok()
                 .filter(|n| n.checked_mul(4).is_some_and(|b| b <= r.remaining()))
-                .ok_or_else(|| bad(format!("array {name:?} claims {n} values, more than the file holds")))?;
+                .ok_or_else(|| {
+                    bad(format!(
+                        "array {name:?} claims {n} values, more than the file holds"
+                    ))
+                })?;
             let raw = r.take(4 * n).ok_or_else(truncated)?;
             let values = raw
                 .chunks_exact(4)

@@ -4,9 +4,9 @@ use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use glam::Vec3;
 use gltf::json;
 use json::validation::{Checked::Valid, USize64};
-use glam::Vec3;
 
 use super::atomic::{check_writable, write_atomic};
 use super::geometry::vertex_normals;
@@ -114,7 +114,13 @@ impl FrameSink for GlbSink {
                 path: self.out.clone(),
             });
         }
-        let (root, bin) = build(staged, &self.options, &self.frames, &self.positions, &self.peak_strain);
+        let (root, bin) = build(
+            staged,
+            &self.options,
+            &self.frames,
+            &self.positions,
+            &self.peak_strain,
+        );
         let json_text = json::serialize::to_vec(&root).map_err(|source| ExportError::Json {
             path: self.out.clone(),
             source,
@@ -133,7 +139,9 @@ impl FrameSink for GlbSink {
             json: Cow::Owned(json_text),
             bin: Some(Cow::Owned(bin)),
         };
-        write_atomic(&self.out, |w| glb.to_writer(w).map_err(std::io::Error::other))?;
+        write_atomic(&self.out, |w| {
+            glb.to_writer(w).map_err(std::io::Error::other)
+        })?;
         // Free the frames: the sink is done.
         self.positions = Vec::new();
         Ok(vec![self.out.clone()])
@@ -282,7 +290,12 @@ fn build(
         let mut attributes = BTreeMap::new();
         let pos = b.accessor_f32(&flat(rest), json::accessor::Type::Vec3, vertex, true);
         attributes.insert(Valid(json::mesh::Semantic::Positions), pos);
-        let nor = b.accessor_f32(&flat(&rest_normals), json::accessor::Type::Vec3, vertex, false);
+        let nor = b.accessor_f32(
+            &flat(&rest_normals),
+            json::accessor::Type::Vec3,
+            vertex,
+            false,
+        );
         attributes.insert(Valid(json::mesh::Semantic::Normals), nor);
         if let Some(map) = options.strain_colors {
             let colors: Vec<f32> = peak.iter().flat_map(|&s| map.color(s)).collect();
@@ -292,7 +305,11 @@ fn build(
         let mut targets = Vec::with_capacity(n_frames);
         for frame in positions {
             let p = &frame[m];
-            let dp: Vec<f32> = p.iter().zip(rest).flat_map(|(p, r)| (*p - *r).to_array()).collect();
+            let dp: Vec<f32> = p
+                .iter()
+                .zip(rest)
+                .flat_map(|(p, r)| (*p - *r).to_array())
+                .collect();
             let normals = vertex_normals(&mesh.triangles, p);
             let dn: Vec<f32> = normals
                 .iter()
@@ -329,7 +346,10 @@ fn build(
 
     // Keyframe times and one-hot weights, shared by every channel.
     let fps = f64::from(staged.fps);
-    let times: Vec<f32> = frames.iter().map(|&f| (f64::from(f) / fps) as f32).collect();
+    let times: Vec<f32> = frames
+        .iter()
+        .map(|&f| (f64::from(f) / fps) as f32)
+        .collect();
     let mut weights = vec![0.0f32; n_frames * n_frames];
     for k in 0..n_frames {
         weights[k * n_frames + k] = 1.0;

@@ -267,7 +267,13 @@ impl MeshMeta {
         let name: String = self
             .name
             .chars()
-            .map(|c| if c.is_whitespace() || c.is_control() { '_' } else { c })
+            .map(|c| {
+                if c.is_whitespace() || c.is_control() {
+                    '_'
+                } else {
+                    c
+                }
+            })
             .collect();
         format!("{}:{name}", self.role)
     }

@@ -73,7 +73,12 @@ impl FrameSink for PlySink {
     }
 }
 
-fn frame_bytes(staged: &Staged, options: &ExportOptions, frame: u32, meshes: &[&[Vec3]]) -> Vec<u8> {
+fn frame_bytes(
+    staged: &Staged,
+    options: &ExportOptions,
+    frame: u32,
+    meshes: &[&[Vec3]],
+) -> Vec<u8> {
     let vertices: usize = meshes.iter().map(|m| m.len()).sum();
     let faces: usize = staged.meshes.iter().map(|m| m.triangles.len()).sum();
     let mut header = String::new();

@@ -32,7 +32,11 @@ fn cube() -> (Vec<Vec3>, Vec<[u32; 3]>) {
             // Orient outward: the face normal must point away from the centre.
             let [a, b, c] = tri.map(|v: u32| p[v as usize]);
             let outward = (b - a).cross(c - a).dot(a + b + c) > 0.0;
-            t.push(if outward { tri } else { [tri[0], tri[2], tri[1]] });
+            t.push(if outward {
+                tri
+            } else {
+                [tri[0], tri[2], tri[1]]
+            });
         }
     }
     (p, t)
@@ -61,7 +65,10 @@ fn angle_weighted_normals_of_a_cube_point_along_the_diagonals() {
     let (p, t) = cube();
     for (v, n) in p.iter().zip(vertex_normals(&t, &p)) {
         let expected = v.normalize();
-        assert!((n - expected).length() < 1e-6, "vertex {v}: {n} vs {expected}");
+        assert!(
+            (n - expected).length() < 1e-6,
+            "vertex {v}: {n} vs {expected}"
+        );
     }
 }
 
@@ -89,8 +96,14 @@ fn strain_of_uniform_scaling_is_the_scale_factor() {
 fn strain_is_one_under_rigid_motion() {
     let (p, t) = cube();
     let q = Quat::from_axis_angle(Vec3::new(1.0, 2.0, 3.0).normalize(), 0.7);
-    let moved: Vec<Vec3> = p.iter().map(|v| q * *v + Vec3::new(5.0, -2.0, 1.0)).collect();
-    for m in [StrainMeasure::MaxPrincipalStretch, StrainMeasure::AreaStretch] {
+    let moved: Vec<Vec3> = p
+        .iter()
+        .map(|v| q * *v + Vec3::new(5.0, -2.0, 1.0))
+        .collect();
+    for m in [
+        StrainMeasure::MaxPrincipalStretch,
+        StrainMeasure::AreaStretch,
+    ] {
         for s in vertex_strain(&t, &p, &moved, m) {
             assert_relative_eq!(s, 1.0, max_relative = 1e-5);
         }
@@ -100,7 +113,10 @@ fn strain_is_one_under_rigid_motion() {
 #[test]
 fn strain_of_biaxial_stretch_and_shear_match_closed_forms() {
     let (p, t) = grid(5);
-    let pulled: Vec<Vec3> = p.iter().map(|v| Vec3::new(1.5 * v.x, 0.8 * v.y, 0.0)).collect();
+    let pulled: Vec<Vec3> = p
+        .iter()
+        .map(|v| Vec3::new(1.5 * v.x, 0.8 * v.y, 0.0))
+        .collect();
     for s in vertex_strain(&t, &p, &pulled, StrainMeasure::MaxPrincipalStretch) {
         assert_relative_eq!(s, 1.5, max_relative = 1e-6);
     }
@@ -109,7 +125,10 @@ fn strain_of_biaxial_stretch_and_shear_match_closed_forms() {
     }
     // Simple shear x += γ y preserves area; λ_max = γ/2 + sqrt(1 + γ²/4).
     let gamma = 0.5f32;
-    let sheared: Vec<Vec3> = p.iter().map(|v| Vec3::new(v.x + gamma * v.y, v.y, 0.0)).collect();
+    let sheared: Vec<Vec3> = p
+        .iter()
+        .map(|v| Vec3::new(v.x + gamma * v.y, v.y, 0.0))
+        .collect();
     let expected = gamma / 2.0 + (1.0 + gamma * gamma / 4.0).sqrt();
     for s in vertex_strain(&t, &p, &sheared, StrainMeasure::MaxPrincipalStretch) {
         assert_relative_eq!(s, expected, max_relative = 1e-6);
@@ -179,7 +198,14 @@ fn staging_rejects_bad_metadata_naming_the_item() {
     let mut m = meta();
     m.meshes[0].rest_positions[4].y = f32::NAN;
     let err = Staged::new(&m, &ExportOptions::default()).unwrap_err();
-    assert!(matches!(err, ExportError::NonFinite { frame: None, vertex: 4, .. }));
+    assert!(matches!(
+        err,
+        ExportError::NonFinite {
+            frame: None,
+            vertex: 4,
+            ..
+        }
+    ));
     assert!(err.to_string().contains("rest pose"), "{err}");
 }
 
@@ -191,17 +217,33 @@ fn frames_are_checked_for_count_order_and_finiteness() {
     let bone = m.meshes[1].rest_positions.clone();
     assert!(matches!(
         s.frame(0, &[&skin]),
-        Err(ExportError::MeshCount { frame: 0, expected: 2, found: 1 })
+        Err(ExportError::MeshCount {
+            frame: 0,
+            expected: 2,
+            found: 1
+        })
     ));
     let short = &skin[..5];
     assert!(matches!(
         s.frame(0, &[short, &bone]),
-        Err(ExportError::VertexCount { frame: 0, expected: 9, found: 5, .. })
+        Err(ExportError::VertexCount {
+            frame: 0,
+            expected: 9,
+            found: 5,
+            ..
+        })
     ));
     let mut inf = skin.clone();
     inf[7].x = f32::INFINITY;
     let err = s.frame(0, &[&inf, &bone]).unwrap_err();
-    assert!(matches!(err, ExportError::NonFinite { frame: Some(0), vertex: 7, .. }));
+    assert!(matches!(
+        err,
+        ExportError::NonFinite {
+            frame: Some(0),
+            vertex: 7,
+            ..
+        }
+    ));
     assert!(err.to_string().contains("frame 0") && err.to_string().contains("sheet"));
     // A collider that is not exported is still counted but not checked for finiteness.
     let mut bad_bone = bone.clone();
@@ -209,7 +251,10 @@ fn frames_are_checked_for_count_order_and_finiteness() {
     assert_eq!(s.frame(3, &[&skin, &bad_bone]).unwrap().len(), 1);
     assert!(matches!(
         s.frame(3, &[&skin, &bone]),
-        Err(ExportError::FrameOrder { frame: 3, previous: 3 })
+        Err(ExportError::FrameOrder {
+            frame: 3,
+            previous: 3
+        })
     ));
 }
 
@@ -252,7 +297,11 @@ fn checkpoint_round_trips_bits_exactly() {
     let path = dir.path().join("state.ckpt");
     c.write(&path).unwrap();
     assert_eq!(std::fs::read(&path).unwrap(), bytes);
-    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1, "no temp file left");
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        1,
+        "no temp file left"
+    );
 }
 
 #[test]

@@ -21,7 +21,15 @@ mod tests {
 
     #[test]
     fn float_text_round_trips_bits() {
-        for x in [0.1f32, -0.0, 1.0, 1e-30, 3.4e38, 1.0 / 3.0, f32::MIN_POSITIVE] {
+        for x in [
+            0.1f32,
+            -0.0,
+            1.0,
+            1e-30,
+            3.4e38,
+            1.0 / 3.0,
+            f32::MIN_POSITIVE,
+        ] {
             let mut s = String::new();
             push_f32(&mut s, x);
             assert_eq!(s.parse::<f32>().unwrap().to_bits(), x.to_bits(), "{s}");

@@ -63,7 +63,11 @@ impl FrameSink for UsdaSink {
         }
         let staged = Staged::new(meta, &self.options)?;
         check_writable(&self.out)?;
-        self.samples = staged.meshes.iter().map(|_| MeshSamples::default()).collect();
+        self.samples = staged
+            .meshes
+            .iter()
+            .map(|_| MeshSamples::default())
+            .collect();
         self.staged = Some(staged);
         Ok(())
     }
@@ -91,7 +95,11 @@ impl FrameSink for UsdaSink {
                 (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
                 |(lo, hi), v| (lo.min(*v), hi.max(*v)),
             );
-            push_sample(&mut s.extent, frame, [lo.to_array(), hi.to_array()].into_iter());
+            push_sample(
+                &mut s.extent,
+                frame,
+                [lo.to_array(), hi.to_array()].into_iter(),
+            );
             if let Some(map) = self.options.strain_colors {
                 let strain = rest.vertex_strain(p, map.measure);
                 push_sample(&mut s.colors, frame, strain.iter().map(|&x| map.color(x)));
@@ -115,7 +123,13 @@ impl FrameSink for UsdaSink {
                 path: self.out.clone(),
             });
         };
-        let text = stage_text(staged, &self.samples, first, last, self.options.strain_colors.is_some());
+        let text = stage_text(
+            staged,
+            &self.samples,
+            first,
+            last,
+            self.options.strain_colors.is_some(),
+        );
         write_atomic(&self.out, |w| w.write_all(text.as_bytes()))?;
         self.samples = Vec::new();
         Ok(vec![self.out.clone()])
@@ -140,7 +154,13 @@ fn push_sample(out: &mut String, frame: u32, values: impl Iterator<Item = [f32; 
 fn identifier(raw: &str) -> String {
     let mut s: String = raw
         .chars()
-        .map(|c| if c.is_ascii_alphanumeric() || c == '_' { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect();
     if s.is_empty() || s.starts_with(|c: char| c.is_ascii_digit()) {
         s.insert(0, '_');
@@ -203,7 +223,11 @@ fn stage_text(
             quoted(&mesh.name),
             mesh.role
         );
-        let _ = write!(t, "        float3[] extent.timeSamples = {{\n{}        }}\n", s.extent);
+        let _ = write!(
+            t,
+            "        float3[] extent.timeSamples = {{\n{}        }}\n",
+            s.extent
+        );
         t.push_str("        int[] faceVertexCounts = [");
         for i in 0..mesh.triangles.len() {
             t.push_str(if i == 0 { "3" } else { ", 3" });
@@ -222,7 +246,11 @@ fn stage_text(
              normal3f[] normals.timeSamples = {{\n{}        }}\n",
             s.normals
         );
-        let _ = write!(t, "        point3f[] points.timeSamples = {{\n{}        }}\n", s.points);
+        let _ = write!(
+            t,
+            "        point3f[] points.timeSamples = {{\n{}        }}\n",
+            s.points
+        );
         if colors {
             let _ = write!(
                 t,

@@ -31,7 +31,11 @@ fn a_file_in_place_of_the_directory_is_unwritable() {
     let file = root.path().join("plain");
     std::fs::write(&file, b"x").unwrap();
     let err = seq
-        .write_to(Format::Glb.sink(&file.join("clip.glb"), &ExportOptions::default()).as_mut())
+        .write_to(
+            Format::Glb
+                .sink(&file.join("clip.glb"), &ExportOptions::default())
+                .as_mut(),
+        )
         .unwrap_err();
     assert!(matches!(err, ExportError::UnwritableDirectory { path, .. } if path == file));
     assert_eq!(listing(root.path()), vec![file]);
@@ -53,9 +57,16 @@ fn read_only_directory_is_unwritable() {
     }
     for format in Format::ALL {
         let err = seq
-            .write_to(format.sink(&ro.join(format!("c.{format}")), &ExportOptions::default()).as_mut())
+            .write_to(
+                format
+                    .sink(&ro.join(format!("c.{format}")), &ExportOptions::default())
+                    .as_mut(),
+            )
             .unwrap_err();
-        assert!(matches!(err, ExportError::UnwritableDirectory { ref path, .. } if *path == ro), "{err:?}");
+        assert!(
+            matches!(err, ExportError::UnwritableDirectory { ref path, .. } if *path == ro),
+            "{err:?}"
+        );
     }
     assert!(listing(&ro).is_empty());
     std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o755)).unwrap();
@@ -74,11 +85,26 @@ fn a_sequence_keeps_only_the_complete_frames_before_a_failure() {
     for format in [Format::Obj, Format::Ply] {
         let dir = tempfile::tempdir().unwrap();
         let err = seq
-            .write_to(format.sink(&dir.path().join(format!("c.{format}")), &ExportOptions::default()).as_mut())
+            .write_to(
+                format
+                    .sink(
+                        &dir.path().join(format!("c.{format}")),
+                        &ExportOptions::default(),
+                    )
+                    .as_mut(),
+            )
             .unwrap_err();
         match &err {
-            ExportError::NonFinite { frame, mesh, vertex, .. } => {
-                assert_eq!((*frame, mesh.as_str(), *vertex), (Some(FIRST + 2), "sheet", 5));
+            ExportError::NonFinite {
+                frame,
+                mesh,
+                vertex,
+                ..
+            } => {
+                assert_eq!(
+                    (*frame, mesh.as_str(), *vertex),
+                    (Some(FIRST + 2), "sheet", 5)
+                );
             }
             other => panic!("expected NonFinite, got {other:?}"),
         }
@@ -86,8 +112,14 @@ fn a_sequence_keeps_only_the_complete_frames_before_a_failure() {
             .iter()
             .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
             .collect();
-        let want: Vec<String> = [FIRST, FIRST + 1].iter().map(|f| format!("c_{f:06}.{format}")).collect();
-        assert_eq!(names, want, "{format}: only the complete frames, no temporary file");
+        let want: Vec<String> = [FIRST, FIRST + 1]
+            .iter()
+            .map(|f| format!("c_{f:06}.{format}"))
+            .collect();
+        assert_eq!(
+            names, want,
+            "{format}: only the complete frames, no temporary file"
+        );
     }
 }
 
@@ -99,7 +131,9 @@ fn a_single_file_export_that_fails_writes_nothing() {
         let out = dir.path().join(format!("c.{format}"));
         // An older complete export of the same name must survive the failed one untouched.
         std::fs::write(&out, b"previous").unwrap();
-        let err = seq.write_to(format.sink(&out, &ExportOptions::default()).as_mut()).unwrap_err();
+        let err = seq
+            .write_to(format.sink(&out, &ExportOptions::default()).as_mut())
+            .unwrap_err();
         assert!(matches!(err, ExportError::NonFinite { .. }), "{err:?}");
         assert_eq!(listing(dir.path()), vec![out.clone()]);
         assert_eq!(std::fs::read(&out).unwrap(), b"previous");
@@ -112,7 +146,11 @@ fn inconsistent_vertex_counts_name_the_mesh_and_frame() {
     seq.frames[1].positions[0].pop();
     let dir = tempfile::tempdir().unwrap();
     let err = seq
-        .write_to(Format::Usda.sink(&dir.path().join("c.usda"), &ExportOptions::default()).as_mut())
+        .write_to(
+            Format::Usda
+                .sink(&dir.path().join("c.usda"), &ExportOptions::default())
+                .as_mut(),
+        )
         .unwrap_err();
     assert!(matches!(
         &err,
@@ -129,7 +167,9 @@ fn finishing_without_frames_is_an_error_for_single_file_formats() {
     let dir = tempfile::tempdir().unwrap();
     for format in [Format::Glb, Format::Usda] {
         let out = dir.path().join(format!("c.{format}"));
-        let err = seq.write_to(format.sink(&out, &ExportOptions::default()).as_mut()).unwrap_err();
+        let err = seq
+            .write_to(format.sink(&out, &ExportOptions::default()).as_mut())
+            .unwrap_err();
         assert!(matches!(err, ExportError::NoFrames { path } if path == out));
     }
     assert!(listing(dir.path()).is_empty());

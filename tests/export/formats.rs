@@ -19,7 +19,9 @@ fn glb_morph_targets_reproduce_every_frame() {
     let seq = clip();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("clip.glb");
-    let written = seq.write_to(Format::Glb.sink(&path, &colliders()).as_mut()).unwrap();
+    let written = seq
+        .write_to(Format::Glb.sink(&path, &colliders()).as_mut())
+        .unwrap();
     assert_eq!(written, vec![path.clone()]);
 
     let (doc, buffers, _) = gltf::import(&path).unwrap();
@@ -61,8 +63,14 @@ fn glb_morph_targets_reproduce_every_frame() {
     let channels: Vec<_> = anim.channels().collect();
     assert_eq!(channels.len(), 2);
     for ch in channels {
-        assert_eq!(ch.target().property(), gltf::animation::Property::MorphTargetWeights);
-        assert_eq!(ch.sampler().interpolation(), gltf::animation::Interpolation::Step);
+        assert_eq!(
+            ch.target().property(),
+            gltf::animation::Property::MorphTargetWeights
+        );
+        assert_eq!(
+            ch.sampler().interpolation(),
+            gltf::animation::Interpolation::Step
+        );
         let r = ch.reader(|b| Some(&buffers[b.index()]));
         let times: Vec<f32> = r.read_inputs().unwrap().collect();
         let want: Vec<f32> = (0..FRAMES).map(|k| (FIRST + k) as f32 / FPS).collect();
@@ -92,7 +100,8 @@ fn glb_color_is_the_peak_strain_colour() {
     seq.frames.truncate(FLAT as usize);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("flat.glb");
-    seq.write_to(Format::Glb.sink(&path, &ExportOptions::default()).as_mut()).unwrap();
+    seq.write_to(Format::Glb.sink(&path, &ExportOptions::default()).as_mut())
+        .unwrap();
     let (doc, buffers, _) = gltf::import(&path).unwrap();
     assert_eq!(doc.nodes().count(), 1, "colliders are off by default");
     let prim = doc.meshes().next().unwrap().primitives().next().unwrap();
@@ -106,7 +115,10 @@ fn glb_color_is_the_peak_strain_colour() {
     assert_eq!(flat_scale(FLAT - 1), 1.3);
     assert_eq!(colors.len(), 30);
     for c in colors {
-        assert!((c[0] - 1.0).abs() < 1e-6 && c[1].abs() < 1e-5 && c[2].abs() < 1e-5, "{c:?}");
+        assert!(
+            (c[0] - 1.0).abs() < 1e-6 && c[1].abs() < 1e-5 && c[2].abs() < 1e-5,
+            "{c:?}"
+        );
     }
 }
 
@@ -121,15 +133,25 @@ fn obj_frames_read_back_with_tobj() {
     let seq = clip();
     let dir = tempfile::tempdir().unwrap();
     let written = seq
-        .write_to(Format::Obj.sink(&dir.path().join("clip.obj"), &colliders()).as_mut())
+        .write_to(
+            Format::Obj
+                .sink(&dir.path().join("clip.obj"), &colliders())
+                .as_mut(),
+        )
         .unwrap();
     let names: Vec<String> = written
         .iter()
         .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
         .collect();
-    let want: Vec<String> = (0..FRAMES).map(|k| format!("clip_{:06}.obj", FIRST + k)).collect();
+    let want: Vec<String> = (0..FRAMES)
+        .map(|k| format!("clip_{:06}.obj", FIRST + k))
+        .collect();
     assert_eq!(names, want);
-    assert_eq!(listing(dir.path()), written, "nothing else in the directory");
+    assert_eq!(
+        listing(dir.path()),
+        written,
+        "nothing else in the directory"
+    );
 
     let options = tobj::LoadOptions {
         single_index: true,
@@ -145,9 +167,9 @@ fn obj_frames_read_back_with_tobj() {
             assert_eq!(mesh.indices.len(), 3 * meta.triangles.len());
             let at = |a: &[f32], i: u32| Vec3::from_slice(&a[3 * i as usize..3 * i as usize + 3]);
             for (t, tri) in meta.triangles.iter().enumerate() {
-                for c in 0..3 {
+                for (c, &v) in tri.iter().enumerate() {
                     let i = mesh.indices[3 * t + c];
-                    let want = frame.positions[m][tri[c] as usize];
+                    let want = frame.positions[m][v as usize];
                     // Shortest round-trip text: bit-exact.
                     assert_eq!(at(&mesh.positions, i), want, "frame {k} mesh {m}");
                     if m == 0 && (k as u32) < FLAT {
@@ -173,13 +195,23 @@ struct Ply {
 
 fn read_ply(path: &Path) -> Ply {
     let bytes = std::fs::read(path).unwrap();
-    let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
-    let header: Vec<String> =
-        String::from_utf8(bytes[..end].to_vec()).unwrap().lines().map(str::to_owned).collect();
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .unwrap()
+        + 11;
+    let header: Vec<String> = String::from_utf8(bytes[..end].to_vec())
+        .unwrap()
+        .lines()
+        .map(str::to_owned)
+        .collect();
     assert_eq!(header[0], "ply");
     assert_eq!(header[1], "format binary_little_endian 1.0");
     let count = |element: &str| -> usize {
-        let line = header.iter().find(|l| l.starts_with(&format!("element {element} "))).unwrap();
+        let line = header
+            .iter()
+            .find(|l| l.starts_with(&format!("element {element} ")))
+            .unwrap();
         line.rsplit(' ').next().unwrap().parse().unwrap()
     };
     let props: Vec<&str> = header
@@ -189,7 +221,7 @@ fn read_ply(path: &Path) -> Ply {
         .collect();
     let colors = props.contains(&"property uchar red");
     let mut body = &bytes[end..];
-    let mut f32_ = |b: &mut &[u8]| {
+    let f32_ = |b: &mut &[u8]| {
         let v = f32::from_le_bytes(b[..4].try_into().unwrap());
         *b = &b[4..];
         v
@@ -215,7 +247,11 @@ fn read_ply(path: &Path) -> Ply {
         faces.push(f);
     }
     assert!(body.is_empty(), "{} trailing bytes", body.len());
-    Ply { header, vertices, faces }
+    Ply {
+        header,
+        vertices,
+        faces,
+    }
 }
 
 #[test]
@@ -223,19 +259,33 @@ fn ply_frames_read_back() {
     let seq = clip();
     let dir = tempfile::tempdir().unwrap();
     let written = seq
-        .write_to(Format::Ply.sink(&dir.path().join("clip.ply"), &colliders()).as_mut())
+        .write_to(
+            Format::Ply
+                .sink(&dir.path().join("clip.ply"), &colliders())
+                .as_mut(),
+        )
         .unwrap();
     assert_eq!(written.len(), FRAMES as usize);
     assert!(written[2].ends_with(format!("clip_{:06}.ply", FIRST + 2)));
     let skin_n = seq.meta.meshes[0].rest_positions.len();
     for (k, (path, frame)) in written.iter().zip(&seq.frames).enumerate() {
         let ply = read_ply(path);
-        assert!(ply.header.contains(&"comment mesh skin:sheet vertices 0 30 faces 0 40".into()));
-        assert!(ply.header.contains(&"comment mesh bone:ulna vertices 30 4 faces 40 4".into()));
+        assert!(
+            ply.header
+                .contains(&"comment mesh skin:sheet vertices 0 30 faces 0 40".into())
+        );
+        assert!(
+            ply.header
+                .contains(&"comment mesh bone:ulna vertices 30 4 faces 40 4".into())
+        );
         let all: Vec<Vec3> = frame.positions.concat();
         assert_eq!(ply.vertices.len(), all.len());
         for (i, ((row, rgb), want)) in ply.vertices.iter().zip(&all).enumerate() {
-            assert_eq!(Vec3::new(row[0], row[1], row[2]), *want, "frame {k} vertex {i}");
+            assert_eq!(
+                Vec3::new(row[0], row[1], row[2]),
+                *want,
+                "frame {k} vertex {i}"
+            );
             if i < skin_n && (k as u32) < FLAT {
                 assert!((Vec3::new(row[3], row[4], row[5]) - Vec3::Z).length() < 1e-6);
                 let exp = flat_color(k as u32).map(|c| (c * 255.0).round() as u8);
@@ -243,7 +293,12 @@ fn ply_frames_read_back() {
             }
         }
         let mut want_faces = seq.meta.meshes[0].triangles.clone();
-        want_faces.extend(seq.meta.meshes[1].triangles.iter().map(|t| t.map(|v| v + 30)));
+        want_faces.extend(
+            seq.meta.meshes[1]
+                .triangles
+                .iter()
+                .map(|t| t.map(|v| v + 30)),
+        );
         assert_eq!(ply.faces, want_faces);
     }
 }
@@ -279,7 +334,8 @@ fn usda_has_one_time_sample_per_frame() {
     let seq = clip();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("clip.usda");
-    seq.write_to(Format::Usda.sink(&path, &colliders()).as_mut()).unwrap();
+    seq.write_to(Format::Usda.sink(&path, &colliders()).as_mut())
+        .unwrap();
     let text = std::fs::read_to_string(&path).unwrap();
     assert!(text.starts_with("#usda 1.0\n"));
     for line in [
@@ -301,22 +357,33 @@ fn usda_has_one_time_sample_per_frame() {
         }
         let colors = usda_samples(&text, "color3f[] primvars:displayColor", m);
         assert_eq!(colors.len(), FRAMES as usize);
-        assert_eq!(usda_samples(&text, "normal3f[] normals", m).len(), FRAMES as usize);
-        assert_eq!(usda_samples(&text, "float3[] extent", m).len(), FRAMES as usize);
+        assert_eq!(
+            usda_samples(&text, "normal3f[] normals", m).len(),
+            FRAMES as usize
+        );
+        assert_eq!(
+            usda_samples(&text, "float3[] extent", m).len(),
+            FRAMES as usize
+        );
         if m == 0 {
-            for k in 0..FLAT as usize {
+            for (k, (_, sample)) in colors.iter().take(FLAT as usize).enumerate() {
                 let exp = Vec3::from(flat_color(k as u32));
-                assert!(colors[k].1.iter().all(|c| (*c - exp).length() < 1e-5));
+                assert!(sample.iter().all(|c| (*c - exp).length() < 1e-5));
             }
         }
-        let counts = format!("int[] faceVertexCounts = [{}]", vec!["3"; mesh.triangles.len()].join(", "));
+        let counts = format!(
+            "int[] faceVertexCounts = [{}]",
+            vec!["3"; mesh.triangles.len()].join(", ")
+        );
         assert!(text.contains(&counts));
     }
 }
 
 #[test]
 fn usda_opens_in_pixar_usd_when_available() {
-    let probe = std::process::Command::new("python3").args(["-c", "import pxr"]).output();
+    let probe = std::process::Command::new("python3")
+        .args(["-c", "import pxr"])
+        .output();
     if !probe.is_ok_and(|o| o.status.success()) {
         eprintln!("skipped: python3 with pxr (pip install usd-core) is not available");
         return;
@@ -324,7 +391,8 @@ fn usda_opens_in_pixar_usd_when_available() {
     let seq = clip();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("clip.usda");
-    seq.write_to(Format::Usda.sink(&path, &colliders()).as_mut()).unwrap();
+    seq.write_to(Format::Usda.sink(&path, &colliders()).as_mut())
+        .unwrap();
     let script = r#"
 import sys
 from pxr import Usd, UsdGeom
@@ -336,10 +404,19 @@ print(len(times), stage.GetTimeCodesPerSecond(), repr(float(p[7][0])), repr(floa
 "#;
     let probe_frame = FIRST + FLAT - 1;
     let out = std::process::Command::new("python3")
-        .args(["-c", script, path.to_str().unwrap(), &probe_frame.to_string()])
+        .args([
+            "-c",
+            script,
+            path.to_str().unwrap(),
+            &probe_frame.to_string(),
+        ])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let text = String::from_utf8(out.stdout).unwrap();
     let fields: Vec<&str> = text.split_whitespace().collect();
     assert_eq!(fields[0].parse::<u32>().unwrap(), FRAMES);
@@ -358,11 +435,16 @@ fn same_input_gives_the_same_bytes() {
             .iter()
             .map(|d| {
                 let out = d.path().join(format!("clip.{format}"));
-                let written = seq.write_to(format.sink(&out, &colliders()).as_mut()).unwrap();
+                let written = seq
+                    .write_to(format.sink(&out, &colliders()).as_mut())
+                    .unwrap();
                 written.iter().map(|p| std::fs::read(p).unwrap()).collect()
             })
             .collect();
         assert!(!files[0].is_empty());
-        assert!(files[0] == files[1], "{format} output differs between two runs");
+        assert!(
+            files[0] == files[1],
+            "{format} output differs between two runs"
+        );
     }
 }

@@ -65,13 +65,18 @@ fn clip() -> FrameSequence {
     ));
     for k in 0..FRAMES {
         let s: Vec<Vec3> = if k < FLAT {
-            skin.iter().map(|p| Vec3::new(flat_scale(k) * p.x, flat_scale(k) * p.y, 0.0)).collect()
+            skin.iter()
+                .map(|p| Vec3::new(flat_scale(k) * p.x, flat_scale(k) * p.y, 0.0))
+                .collect()
         } else {
             skin.iter()
                 .map(|p| Vec3::new(p.x, p.y, 0.05 * (10.0 * p.x + k as f32).sin()))
                 .collect()
         };
-        let b = bone.iter().map(|p| *p + Vec3::new(0.01 * k as f32, 0.0, 0.0)).collect();
+        let b = bone
+            .iter()
+            .map(|p| *p + Vec3::new(0.01 * k as f32, 0.0, 0.0))
+            .collect();
         seq.push(FIRST + k, vec![s, b]);
     }
     seq
