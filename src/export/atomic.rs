@@ -50,11 +50,18 @@ pub(super) fn write_atomic_with(
     Ok(())
 }
 
-/// A temporary file in `dir`, or [`ExportError::UnwritableDirectory`].
+/// A temporary file in `dir`, or [`ExportError::UnwritableDirectory`]. It gets the permissions
+/// of any new file (`0o666` less the umask), not the owner-only default of temporary files,
+/// since it becomes the output.
 fn temp_in(dir: &Path) -> Result<NamedTempFile, ExportError> {
-    tempfile::Builder::new()
-        .prefix(".dermis-")
-        .suffix(".tmp")
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".dermis-").suffix(".tmp");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    builder
         .tempfile_in(dir)
         .map_err(|source| ExportError::UnwritableDirectory {
             path: dir.to_owned(),

@@ -426,6 +426,30 @@ print(len(times), stage.GetTimeCodesPerSecond(), repr(float(p[7][0])), repr(floa
     assert_eq!(fields[3].parse::<f64>().unwrap() as f32, want.y);
 }
 
+#[cfg(unix)]
+#[test]
+fn exported_files_get_ordinary_permissions() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let reference = dir.path().join("reference");
+    std::fs::write(&reference, b"").unwrap();
+    let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    for format in Format::ALL {
+        let out = dir.path().join(format!("clip.{format}"));
+        for file in clip()
+            .write_to(format.sink(&out, &colliders()).as_mut())
+            .unwrap()
+        {
+            assert_eq!(
+                mode(&file),
+                mode(&reference),
+                "{} like any new file",
+                file.display()
+            );
+        }
+    }
+}
+
 #[test]
 fn same_input_gives_the_same_bytes() {
     let seq = clip();
