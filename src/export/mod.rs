@@ -321,7 +321,9 @@ impl Default for ExportOptions {
 /// [`write_frame`](Self::write_frame) for strictly increasing frame indices, then
 /// [`finish`](Self::finish). After an error the sink must not be used again; files completed
 /// before the error stay, no partial file is left.
-pub trait FrameSink {
+///
+/// Sinks are `Send + Sync` so a `Box<dyn FrameSink>` can live in an ECS resource.
+pub trait FrameSink: Send + Sync {
     /// Validates the metadata and the output directory.
     fn begin(&mut self, meta: &ExportMeta) -> Result<(), ExportError>;
     /// Records frame `frame`: `positions[m]` are the current positions (metres) of mesh `m` of
