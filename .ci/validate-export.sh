@@ -17,5 +17,5 @@ fi
 out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 cargo run --quiet --example export_sample -- "$out" "$frames"
-GLTF_VALIDATOR_DIR="$gv_dir" node .ci/validate-gltf.mjs "$out/arm.glb"
-python3 .ci/validate-usd.py "$out/arm.usda"
+GLTF_VALIDATOR_DIR="$gv_dir" node .ci/validate-gltf.mjs "$out/arm.glb" "$out/arm_plain.glb"
+python3 .ci/validate-usd.py "$out/arm.usda" "$out/arm_plain.usda"

@@ -9,7 +9,8 @@
 //! ```
 //!
 //! It writes `OUT_DIR/arm.glb`, `OUT_DIR/arm.usda`, `OUT_DIR/obj/arm_NNNNNN.obj` and
-//! `OUT_DIR/ply/arm_NNNNNN.ply`, all with the bone as a collider and strain colours.
+//! `OUT_DIR/ply/arm_NNNNNN.ply`, all with the bone as a collider and strain colours, and
+//! `OUT_DIR/arm_plain.glb` and `OUT_DIR/arm_plain.usda` with the skin only and no colours.
 
 use std::path::PathBuf;
 
@@ -95,6 +96,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             written.len(),
             written[0].display()
         );
+    }
+    // The other option set: skin only, no strain colours.
+    let plain = ExportOptions {
+        strain_colors: None,
+        ..ExportOptions::default()
+    };
+    for format in [Format::Glb, Format::Usda] {
+        let path = out.join(format!("arm_plain.{format}"));
+        seq.write_to(format.sink(&path, &plain).as_mut())?;
+        println!("{format}: {}", path.display());
     }
     Ok(())
 }
