@@ -334,3 +334,23 @@ fn damaged_checkpoints_are_rejected() {
     huge[at..at + 8].copy_from_slice(&u64::MAX.to_le_bytes());
     assert!(reason(&huge).contains("claims"));
 }
+
+#[test]
+fn a_failed_atomic_write_leaves_the_old_file_and_no_temporary() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("frame.obj");
+    std::fs::write(&path, b"complete old frame").unwrap();
+    let err = write_atomic(&path, |w| {
+        use std::io::Write as _;
+        w.write_all(b"half a fra")?;
+        Err(std::io::Error::other("disk full"))
+    })
+    .unwrap_err();
+    assert!(
+        matches!(&err, ExportError::Io { path: p, .. } if *p == path),
+        "{err:?}"
+    );
+    assert!(err.to_string().contains("frame.obj"));
+    assert_eq!(std::fs::read(&path).unwrap(), b"complete old frame");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+}
