@@ -69,30 +69,19 @@ pub enum IoError {
     /// The file extension is not one this command reads or writes.
     #[error("{0}: unsupported file type (expected {1})")]
     Unsupported(PathBuf, &'static str),
+    /// Writing the output failed (unwritable directory, disk full, ...).
+    #[error(transparent)]
+    Write(#[from] crate::export::ExportError),
     /// Encoding an image failed.
     #[error("could not encode image: {0}")]
     Encode(String),
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same directory, renamed into place
-/// only when complete: readers never see a half-written file, and a failure leaves nothing.
+/// only when complete and synced: readers never see a half-written file, and a failure leaves
+/// nothing (see [`crate::export::write_atomic`], which this wraps).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
-    let file_err = |source| IoError::File {
-        path: path.to_path_buf(),
-        source,
-    };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".dermis-")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(file_err)?;
-    tmp.write_all(bytes).map_err(file_err)?;
-    tmp.as_file().sync_all().map_err(file_err)?;
-    tmp.persist(path).map_err(|e| file_err(e.error))?;
+    crate::export::write_atomic_durable(path, |w| w.write_all(bytes))?;
     Ok(())
 }
 
@@ -341,7 +330,7 @@ mod tests {
         let missing = dir.path().join("no/such/dir/x.txt");
         assert!(matches!(
             write_atomic(&missing, b"x"),
-            Err(IoError::File { .. })
+            Err(IoError::Write(_))
         ));
     }
 

@@ -17,6 +17,7 @@
 
 pub mod bench;
 pub mod ecs;
+pub mod export;
 pub mod fem;
 pub mod io;
 pub mod mesh;
