@@ -1103,3 +1103,71 @@ impl AnatomySystem {
             .collect())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tetrahedral pressure cell with springs on its edges plus a second spring on one edge,
+    /// deformed away from rest.
+    fn small_system() -> AnatomySystem {
+        let mut sys = AnatomySystem::new(DynamicsConfig {
+            gravity: Vec3::new(0.0, -9.81, 0.0),
+            ..Default::default()
+        })
+        .unwrap();
+        let rest = [Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z];
+        for p in rest {
+            sys.add_particle(p, 0.5).unwrap();
+        }
+        let cell =
+            PressureCell::new(vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], &rest, 300.0, 100.0)
+                .unwrap();
+        sys.add_pressure_cell(&cell).unwrap();
+        for (a, b) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3), (1, 2)] {
+            sys.add_spring(a, b, 40.0 + a as f32, 0.9).unwrap();
+        }
+        sys.x[3] = Vec3::new(0.1, 0.2, 1.3);
+        sys.x[1] = Vec3::new(0.8, -0.1, 0.05);
+        sys
+    }
+
+    #[test]
+    fn forces_are_minus_the_energy_gradient() {
+        let mut sys = small_system();
+        sys.compute_forces();
+        let f = sys.f.clone();
+        let h = 1e-3;
+        for p in 0..4 {
+            for axis in 0..3 {
+                let x0 = sys.x[p];
+                sys.x[p][axis] = x0[axis] + h;
+                let plus = sys.potential_energy_j();
+                sys.x[p][axis] = x0[axis] - h;
+                let minus = sys.potential_energy_j();
+                sys.x[p] = x0;
+                let grad = (plus - minus) / (2.0 * h);
+                assert!(
+                    (f[p][axis] + grad).abs() < 2e-2 * (1.0 + f[p].length()),
+                    "particle {p} axis {axis}: force {} vs -dE/dx {}",
+                    f[p][axis],
+                    -grad
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn muscle_at_rest_is_in_equilibrium() {
+        use crate::anatomy::scenes::tube_mesh;
+        let surface = tube_mesh(Vec3::ZERO, Vec3::new(0.0, 0.0, 0.1), 0.01, 16, 5).unwrap();
+        let line = [Vec3::new(0.0, 0.0, 0.001), Vec3::new(0.0, 0.0, 0.099)];
+        let lattice = MuscleLattice::build(&surface, &line, Default::default()).unwrap();
+        let mut sys = AnatomySystem::new(DynamicsConfig::default()).unwrap();
+        sys.add_muscle(&lattice).unwrap();
+        sys.compute_forces();
+        // Rest lengths and volumes are the built ones, and the outside pressure equals P0.
+        let worst = sys.f.iter().map(|f| f.length()).fold(0.0, f32::max);
+        assert!(worst < 1e-4, "largest force at rest {worst} N");
+    }
+}

@@ -141,7 +141,7 @@ impl Default for JawConfig {
             bone_particle_mass_kg: 0.01,
             hinge_k_n_per_m: 2e4,
             insertion_k_n_per_m: 200.0,
-            closing_k_n_per_m: 1000.0,
+            closing_k_n_per_m: 400.0,
         }
     }
 }
