@@ -15,8 +15,10 @@ fn main() -> Result<(), AnatomyError> {
     let m = scene.muscle;
     let sections = scene.system.muscle(m).map_or(2, |mu| mu.sections());
     let length = |s: &dermis::anatomy::dynamics::AnatomySystem| -> Result<f32, AnatomyError> {
-        Ok((s.muscle_section_centroid(m, sections - 1)? - s.muscle_section_centroid(m, 0)?)
-            .length())
+        Ok(
+            (s.muscle_section_centroid(m, sections - 1)? - s.muscle_section_centroid(m, 0)?)
+                .length(),
+        )
     };
     let (l0, v0) = (length(&scene.system)?, scene.system.muscle_volume_m3(m)?);
     println!(

@@ -98,8 +98,7 @@ impl Muscle {
     }
     /// All particle indices of the muscle.
     pub fn particles(&self) -> Range<usize> {
-        self.first as usize
-            ..self.first as usize + (self.sections * self.per_section) as usize
+        self.first as usize..self.first as usize + (self.sections * self.per_section) as usize
     }
     /// Current activation in `[0, 1]`.
     pub fn activation(&self) -> f32 {
@@ -196,7 +195,7 @@ impl AnatomySystem {
                 value: 0.0,
             });
         }
-        if !(non_negative("drag", config.drag)? < 1.0) {
+        if non_negative("drag", config.drag)? >= 1.0 {
             return Err(AnatomyError::InvalidParameter {
                 name: "drag",
                 value: config.drag,
@@ -535,7 +534,7 @@ impl AnatomySystem {
             for t in 0..lattice.section_triangles().len() {
                 let faces = lattice.prism_faces(j, t).map(|f| f.map(off));
                 let v0 = volume(&faces, &self.x);
-                if !(v0 > 0.0) {
+                if v0.is_nan() || v0 <= 0.0 {
                     return Err(AnatomyError::InvertedCell {
                         cell: self.cell_p0.len(),
                         volume_m3: v0,
@@ -809,7 +808,8 @@ impl AnatomySystem {
                             f -= s;
                         }
                     }
-                    for &i in &g.face_refs[g.face_offsets[p] as usize..g.face_offsets[p + 1] as usize]
+                    for &i in
+                        &g.face_refs[g.face_offsets[p] as usize..g.face_offsets[p + 1] as usize]
                     {
                         f += ff[i as usize];
                     }
@@ -995,8 +995,14 @@ impl AnatomySystem {
         self.v.clone_from(&s.v);
         self.f.clone_from(&s.f);
         for (b, &(com, v, q, l, f, t)) in self.bodies.iter_mut().zip(&s.bodies) {
-            (b.com, b.velocity, b.rotation, b.angular_momentum, b.force, b.torque) =
-                (com, v, q, l, f, t);
+            (
+                b.com,
+                b.velocity,
+                b.rotation,
+                b.angular_momentum,
+                b.force,
+                b.torque,
+            ) = (com, v, q, l, f, t);
         }
     }
 
@@ -1120,9 +1126,13 @@ mod tests {
         for p in rest {
             sys.add_particle(p, 0.5).unwrap();
         }
-        let cell =
-            PressureCell::new(vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], &rest, 300.0, 100.0)
-                .unwrap();
+        let cell = PressureCell::new(
+            vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+            &rest,
+            300.0,
+            100.0,
+        )
+        .unwrap();
         sys.add_pressure_cell(&cell).unwrap();
         for (a, b) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3), (1, 2)] {
             sys.add_spring(a, b, 40.0 + a as f32, 0.9).unwrap();
@@ -1138,7 +1148,7 @@ mod tests {
         sys.compute_forces();
         let f = sys.f.clone();
         let h = 1e-3;
-        for p in 0..4 {
+        for (p, fp) in f.iter().enumerate() {
             for axis in 0..3 {
                 let x0 = sys.x[p];
                 sys.x[p][axis] = x0[axis] + h;
@@ -1148,9 +1158,9 @@ mod tests {
                 sys.x[p] = x0;
                 let grad = (plus - minus) / (2.0 * h);
                 assert!(
-                    (f[p][axis] + grad).abs() < 2e-2 * (1.0 + f[p].length()),
+                    (fp[axis] + grad).abs() < 2e-2 * (1.0 + fp.length()),
                     "particle {p} axis {axis}: force {} vs -dE/dx {}",
-                    f[p][axis],
+                    fp[axis],
                     -grad
                 );
             }

@@ -55,7 +55,7 @@ impl MuscleConfig {
         non_negative("k_longitudinal_n_per_m", self.k_longitudinal_n_per_m)?;
         non_negative("k_section_n_per_m", self.k_section_n_per_m)?;
         positive("pressure_pa", self.pressure_pa)?;
-        if !(non_negative("max_contraction", self.max_contraction)? < 1.0) {
+        if non_negative("max_contraction", self.max_contraction)? >= 1.0 {
             return Err(AnatomyError::InvalidParameter {
                 name: "max_contraction",
                 value: self.max_contraction,
@@ -117,11 +117,11 @@ struct Frame {
 }
 
 impl Frame {
-    fn to_2d(&self, p: Vec3) -> Vec2 {
+    fn to_2d(self, p: Vec3) -> Vec2 {
         let d = p - self.origin;
         Vec2::new(d.dot(self.u), d.dot(self.w))
     }
-    fn to_3d(&self, q: Vec2) -> Vec3 {
+    fn to_3d(self, q: Vec2) -> Vec3 {
         self.origin + q.x * self.u + q.y * self.w
     }
 }
@@ -154,11 +154,15 @@ impl MuscleLattice {
         let outlines: Vec<Vec<Vec2>> = frames
             .iter()
             .enumerate()
-            .map(|(j, f)| cross_section(surface, f).ok_or(AnatomyError::NoCrossSection { section: j }))
+            .map(|(j, f)| {
+                cross_section(surface, f).ok_or(AnatomyError::NoCrossSection { section: j })
+            })
             .collect::<Result<_, _>>()?;
         let props: Vec<(f32, Vec2)> = outlines.iter().map(|o| area_centroid(o)).collect();
-        let main = (0..props.len())
-            .fold(0, |best, j| if props[j].0 > props[best].0 { j } else { best });
+        let main = (0..props.len()).fold(
+            0,
+            |best, j| if props[j].0 > props[best].0 { j } else { best },
+        );
         let (main_area, main_c) = props[main];
         let (points, triangles) = fill(&outlines[main], main_c, config.cell_area_m2);
         if triangles.is_empty() {
@@ -248,7 +252,16 @@ impl MuscleLattice {
         let [a, b, c] = self.triangles[t];
         let lo = |i: u32| j as u32 * n + i;
         let hi = |i: u32| (j as u32 + 1) * n + i;
-        let mut faces = [[lo(a), lo(c), lo(b)], [hi(a), hi(b), hi(c)], [0; 3], [0; 3], [0; 3], [0; 3], [0; 3], [0; 3]];
+        let mut faces = [
+            [lo(a), lo(c), lo(b)],
+            [hi(a), hi(b), hi(c)],
+            [0; 3],
+            [0; 3],
+            [0; 3],
+            [0; 3],
+            [0; 3],
+            [0; 3],
+        ];
         for (k, (p, q)) in [(a, b), (b, c), (c, a)].into_iter().enumerate() {
             faces[2 + 2 * k] = [lo(p), lo(q), hi(q)];
             faces[3 + 2 * k] = [lo(p), hi(q), hi(p)];
@@ -307,7 +320,7 @@ fn section_frames(polyline: &[Vec3], sections: usize) -> Result<Vec<Frame>, Anat
     let mut cumulative = vec![0.0f32];
     for (s, w) in polyline.windows(2).enumerate() {
         let l = (w[1] - w[0]).length();
-        if !(l > 0.0) {
+        if l.is_nan() || l <= 0.0 {
             return Err(AnatomyError::DegenerateSegment { segment: s });
         }
         cumulative.push(cumulative[s] + l);
@@ -321,7 +334,8 @@ fn section_frames(polyline: &[Vec3], sections: usize) -> Result<Vec<Frame>, Anat
             seg += 1;
         }
         let (a, b) = (polyline[seg], polyline[seg + 1]);
-        let along = ((s - cumulative[seg]) / (cumulative[seg + 1] - cumulative[seg])).clamp(0.0, 1.0);
+        let along =
+            ((s - cumulative[seg]) / (cumulative[seg + 1] - cumulative[seg])).clamp(0.0, 1.0);
         let t = (b - a).normalize();
         let u = match frames.last() {
             Some(prev) => (prev.u - prev.u.dot(t) * t).normalize_or(t.any_orthonormal_vector()),
@@ -344,14 +358,20 @@ fn cross_section(surface: &TriMesh, frame: &Frame) -> Option<Vec<Vec2>> {
     let x = surface.positions();
     let topo = surface.topology();
     // Vertices exactly on the plane count as above it, so every edge is cut at most once.
-    let above: Vec<bool> = x.iter().map(|p| (*p - frame.origin).dot(frame.t) >= 0.0).collect();
+    let above: Vec<bool> = x
+        .iter()
+        .map(|p| (*p - frame.origin).dot(frame.t) >= 0.0)
+        .collect();
     let cut = |e: usize| {
         let [a, b] = topo.edges()[e];
         above[a as usize] != above[b as usize]
     };
     let point = |e: usize| {
         let [a, b] = topo.edges()[e].map(|i| x[i as usize]);
-        let (da, db) = ((a - frame.origin).dot(frame.t), (b - frame.origin).dot(frame.t));
+        let (da, db) = (
+            (a - frame.origin).dot(frame.t),
+            (b - frame.origin).dot(frame.t),
+        );
         frame.to_2d(a + (b - a) * (da / (da - db)))
     };
     let mut visited = vec![false; topo.edges().len()];
@@ -448,7 +468,9 @@ fn fill(poly: &[Vec2], centre: Vec2, cell_area: f32) -> (Vec<Vec2>, Vec<[u32; 3]
     let e2 = Vec2::new(0.5 * side, 0.5 * 3f32.sqrt() * side);
     let (min, max) = poly
         .iter()
-        .fold((Vec2::INFINITY, Vec2::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+        .fold((Vec2::INFINITY, Vec2::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(*p), hi.max(*p))
+        });
     let j_lo = ((min.y - centre.y) / e2.y).floor() as i32 - 1;
     let j_hi = ((max.y - centre.y) / e2.y).ceil() as i32 + 1;
     let point = |i: i32, j: i32| centre + i as f32 * e1 + j as f32 * e2;
@@ -469,7 +491,10 @@ fn fill(poly: &[Vec2], centre: Vec2, cell_area: f32) -> (Vec<Vec2>, Vec<[u32; 3]
     }
     let mut tris = Vec::new();
     for &(i, j) in &candidates {
-        for corners in [[(i, j), (i + 1, j), (i, j + 1)], [(i + 1, j), (i + 1, j + 1), (i, j + 1)]] {
+        for corners in [
+            [(i, j), (i + 1, j), (i, j + 1)],
+            [(i + 1, j), (i + 1, j + 1), (i, j + 1)],
+        ] {
             let idx: Option<Vec<usize>> = corners.iter().map(|c| inside.get(c).copied()).collect();
             if let Some(idx) = idx {
                 tris.push([idx[0], idx[1], idx[2]]);
@@ -568,7 +593,11 @@ mod tests {
         let line = [Vec3::new(0.0, 0.0, 0.001), Vec3::new(0.0, 0.0, 0.099)];
         let lat = MuscleLattice::build(&tube(), &line, MuscleConfig::default()).unwrap();
         let s = lat.surface();
-        let x: Vec<Vec3> = s.particles.iter().map(|&p| lat.positions()[p as usize]).collect();
+        let x: Vec<Vec3> = s
+            .particles
+            .iter()
+            .map(|&p| lat.positions()[p as usize])
+            .collect();
         crate::anatomy::pressure::check_closed(&s.triangles, x.len()).unwrap();
         let outer = crate::anatomy::pressure::volume(&s.triangles, &x);
         let cells: f32 = (0..lat.sections() - 1)
@@ -597,11 +626,23 @@ mod tests {
             Err(AnatomyError::NoCrossSection { section: 0 })
         );
         let nan = [Vec3::ZERO, Vec3::new(f32::NAN, 0.0, 0.0)];
-        assert!(matches!(MuscleLattice::build(&t, &nan, cfg), Err(AnatomyError::NonFinite { .. })));
+        assert!(matches!(
+            MuscleLattice::build(&t, &nan, cfg),
+            Err(AnatomyError::NonFinite { .. })
+        ));
         let line = [Vec3::new(0.0, 0.0, 0.001), Vec3::new(0.0, 0.0, 0.099)];
-        let huge = MuscleConfig { cell_area_m2: 1.0, ..cfg };
-        assert!(matches!(MuscleLattice::build(&t, &line, huge), Err(AnatomyError::EmptyLattice { .. })));
+        let huge = MuscleConfig {
+            cell_area_m2: 1.0,
+            ..cfg
+        };
+        assert!(matches!(
+            MuscleLattice::build(&t, &line, huge),
+            Err(AnatomyError::EmptyLattice { .. })
+        ));
         let open = TriMesh::new(t.positions().to_vec(), t.triangles()[1..].to_vec()).unwrap();
-        assert!(matches!(MuscleLattice::build(&open, &line, cfg), Err(AnatomyError::OpenSurface { .. })));
+        assert!(matches!(
+            MuscleLattice::build(&open, &line, cfg),
+            Err(AnatomyError::OpenSurface { .. })
+        ));
     }
 }

@@ -52,7 +52,9 @@ pub enum AnatomyError {
     /// A surface that must enclose a volume (pressure cell, muscle surface) has a boundary edge,
     /// an edge used by more than two faces, or inconsistently oriented faces. Close the surface
     /// and orient all its faces the same way.
-    #[error("surface is not closed and consistently oriented: directed edge ({a}, {b}) has no single opposite")]
+    #[error(
+        "surface is not closed and consistently oriented: directed edge ({a}, {b}) has no single opposite"
+    )]
     OpenSurface {
         /// First vertex of the offending edge.
         a: u32,
@@ -96,7 +98,9 @@ pub enum AnatomyError {
     },
     /// The lattice cell area is too large to put a single triangle in the main cross-section.
     /// Use a smaller cell area.
-    #[error("a cell area of {cell_area_m2} m² leaves the main cross-section (area {section_area_m2} m²) without a triangle")]
+    #[error(
+        "a cell area of {cell_area_m2} m² leaves the main cross-section (area {section_area_m2} m²) without a triangle"
+    )]
     EmptyLattice {
         /// Requested area of one lattice triangle.
         cell_area_m2: f32,

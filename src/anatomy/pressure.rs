@@ -47,7 +47,7 @@ impl PressureCell {
         non_negative("outside_pa", outside_pa)?;
         check_closed(&faces, positions.len())?;
         let v0_m3 = volume(&faces, positions);
-        if !(v0_m3 > 0.0) {
+        if v0_m3.is_nan() || v0_m3 <= 0.0 {
             return Err(AnatomyError::InvertedCell {
                 cell: 0,
                 volume_m3: v0_m3,

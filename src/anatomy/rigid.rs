@@ -130,7 +130,7 @@ impl RigidBody {
         let inertia_body = inertia(&local, masses);
         let scale = inertia_body.x_axis.x + inertia_body.y_axis.y + inertia_body.z_axis.z;
         let det = inertia_body.determinant();
-        if !(det > 1e-9 * scale * scale * scale) {
+        if det.is_nan() || det <= 1e-9 * scale * scale * scale {
             return None;
         }
         Some(Self {
@@ -219,8 +219,8 @@ pub(crate) fn inertia(local: &[Vec3], masses: &[f32]) -> Mat3 {
     let mut i = Mat3::ZERO;
     for (r, &m) in local.iter().zip(masses) {
         let rr = r.length_squared();
-        i += m * (Mat3::from_diagonal(Vec3::splat(rr))
-            - Mat3::from_cols(r * r.x, r * r.y, r * r.z));
+        i +=
+            m * (Mat3::from_diagonal(Vec3::splat(rr)) - Mat3::from_cols(r * r.x, r * r.y, r * r.z));
     }
     i
 }

@@ -202,7 +202,11 @@ pub fn jaw(config: &JawConfig) -> Result<JawScene, AnatomyError> {
     let mass = config.bone_particle_mass_kg;
     let skull = system.add_bone(
         &BoneDesc::new(
-            box_mesh(Vec3::new(-0.06, 0.01, -0.06), Vec3::new(0.06, 0.12, 0.10), 2)?,
+            box_mesh(
+                Vec3::new(-0.06, 0.01, -0.06),
+                Vec3::new(0.06, 0.12, 0.10),
+                2,
+            )?,
             mass,
         )
         .with_kind(BoneKind::Kinematic)
@@ -210,14 +214,22 @@ pub fn jaw(config: &JawConfig) -> Result<JawScene, AnatomyError> {
     )?;
     let jaw = system.add_bone(
         &BoneDesc::new(
-            box_mesh(Vec3::new(-0.045, -0.02, 0.0), Vec3::new(0.045, -0.004, 0.09), 4)?,
+            box_mesh(
+                Vec3::new(-0.045, -0.02, 0.0),
+                Vec3::new(0.045, -0.004, 0.09),
+                4,
+            )?,
             mass,
         )
         .with_attachments(vec![hinge[0], hinge[1], jaw_tissue]),
     )?;
     let spine = system.add_bone(
         &BoneDesc::new(
-            box_mesh(Vec3::new(-0.02, -0.16, -0.07), Vec3::new(0.02, -0.12, -0.01), 2)?,
+            box_mesh(
+                Vec3::new(-0.02, -0.16, -0.07),
+                Vec3::new(0.02, -0.12, -0.01),
+                2,
+            )?,
             mass,
         )
         .with_kind(BoneKind::Kinematic),
@@ -234,7 +246,11 @@ pub fn jaw(config: &JawConfig) -> Result<JawScene, AnatomyError> {
             .map(|b| b.particles().end - 3 + k)
             .expect("body just added")
     };
-    let (s_h0, s_h1, s_t) = (attachment(skull, 0), attachment(skull, 1), attachment(skull, 2));
+    let (s_h0, s_h1, s_t) = (
+        attachment(skull, 0),
+        attachment(skull, 1),
+        attachment(skull, 2),
+    );
     let (j_h0, j_h1, j_t) = (attachment(jaw, 0), attachment(jaw, 1), attachment(jaw, 2));
     system.add_spring(s_h0, j_h0, config.hinge_k_n_per_m, 0.0)?;
     system.add_spring(s_h1, j_h1, config.hinge_k_n_per_m, 0.0)?;

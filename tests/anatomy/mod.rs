@@ -6,7 +6,7 @@ use dermis::anatomy::dynamics::{AnatomySystem, DynamicsConfig};
 use dermis::anatomy::lattice::{MuscleConfig, MuscleLattice};
 use dermis::anatomy::pressure::PressureCell;
 use dermis::anatomy::rigid::{BoneDesc, BoneKind};
-use dermis::anatomy::scenes::{box_mesh, jaw, tube_mesh, JawConfig};
+use dermis::anatomy::scenes::{JawConfig, box_mesh, jaw, tube_mesh};
 use glam::{Quat, Vec3};
 
 fn undamped(dt_s: f32) -> AnatomySystem {
@@ -32,7 +32,9 @@ fn verlet_conserves_oscillator_energy_and_matches_the_analytic_period() {
     // Short spring near the origin: f32 positions keep ~1e-9 m resolution, so rounding does not
     // random-walk the energy over the 200k steps.
     let rest = 0.02;
-    let b = sys.add_particle(Vec3::new(rest + amplitude, 0.0, 0.0), m).unwrap();
+    let b = sys
+        .add_particle(Vec3::new(rest + amplitude, 0.0, 0.0), m)
+        .unwrap();
     sys.add_spring(a, b, k, rest).unwrap();
     let e0 = 0.5 * k * amplitude * amplitude;
     assert!((sys.total_energy() - e0).abs() < 1e-6 * e0.max(1.0));
@@ -161,7 +163,11 @@ fn contracted_muscle_keeps_volume_shortens_and_bulges() {
     }
     // Relaxing again lets the muscle lengthen back (slowly: only the soft in-section springs
     // drive the cross-section back against the drag).
-    assert!(length(&sys) / l0 > 0.9, "released length ratio {}", length(&sys) / l0);
+    assert!(
+        length(&sys) / l0 > 0.9,
+        "released length ratio {}",
+        length(&sys) / l0
+    );
 }
 
 #[test]
@@ -184,7 +190,11 @@ fn muscle_steps_are_bit_identical_for_any_thread_count() {
     let one = run(1);
     let two = run(2);
     let three = run(3);
-    let bits = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+    let bits = |v: &[Vec3]| {
+        v.iter()
+            .flat_map(|p| p.to_array().map(f32::to_bits))
+            .collect::<Vec<_>>()
+    };
     assert_eq!(bits(&one), bits(&two));
     assert_eq!(bits(&one), bits(&three));
 }
@@ -192,7 +202,12 @@ fn muscle_steps_are_bit_identical_for_any_thread_count() {
 /// An asymmetric bone (box plus an off-centre attachment).
 fn bone() -> BoneDesc {
     BoneDesc::new(
-        box_mesh(Vec3::new(-0.03, -0.01, -0.02), Vec3::new(0.05, 0.01, 0.02), 2).unwrap(),
+        box_mesh(
+            Vec3::new(-0.03, -0.01, -0.02),
+            Vec3::new(0.05, 0.01, 0.02),
+            2,
+        )
+        .unwrap(),
         0.01,
     )
     .with_attachments(vec![Vec3::new(0.02, 0.03, 0.01)])
@@ -220,7 +235,8 @@ fn free_rigid_body_keeps_its_shape_and_angular_momentum() {
     let mut sys = undamped(1e-3);
     let b = sys.add_bone(&bone()).unwrap();
     let l = Vec3::new(1e-5, 3e-5, -2e-5);
-    sys.set_body_motion(b, Vec3::new(0.01, 0.0, 0.0), l).unwrap();
+    sys.set_body_motion(b, Vec3::new(0.01, 0.0, 0.0), l)
+        .unwrap();
     let range = sys.body(b).unwrap().particles();
     let d0 = pairwise(&sys.positions()[range.clone()]);
     for _ in 0..5000 {
@@ -230,7 +246,11 @@ fn free_rigid_body_keeps_its_shape_and_angular_momentum() {
     // It did tumble (an asymmetric top), yet stayed rigid.
     assert!(body.rotation().angle_between(Quat::IDENTITY) > 0.5);
     let d1 = pairwise(&sys.positions()[range.clone()]);
-    let worst = d0.iter().zip(&d1).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    let worst = d0
+        .iter()
+        .zip(&d1)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f32::max);
     assert!(worst < 1e-5, "distance changed by {worst} m");
     // L recomputed from the particles' own positions and velocities.
     let lp = particle_momentum(&sys, range, body.center_of_mass());
@@ -244,7 +264,12 @@ fn spring_torque_changes_angular_momentum_but_conserves_the_total() {
     let mut sys = undamped(1e-3);
     let b0 = sys.add_bone(&bone()).unwrap();
     let shifted = BoneDesc::new(
-        box_mesh(Vec3::new(0.07, -0.01, -0.02), Vec3::new(0.15, 0.01, 0.02), 2).unwrap(),
+        box_mesh(
+            Vec3::new(0.07, -0.01, -0.02),
+            Vec3::new(0.15, 0.01, 0.02),
+            2,
+        )
+        .unwrap(),
         0.01,
     )
     .with_attachments(vec![Vec3::new(0.09, -0.03, 0.0)]);
@@ -279,7 +304,9 @@ fn spring_torque_changes_angular_momentum_but_conserves_the_total() {
 #[test]
 fn kinematic_bone_follows_its_pose() {
     let mut sys = undamped(1e-2);
-    let b = sys.add_bone(&bone().with_kind(BoneKind::Kinematic)).unwrap();
+    let b = sys
+        .add_bone(&bone().with_kind(BoneKind::Kinematic))
+        .unwrap();
     let rest = sys.positions().to_vec();
     let (q, t) = (Quat::from_rotation_z(0.3), Vec3::new(0.0, 0.1, 0.0));
     sys.set_kinematic_pose(b, q, t).unwrap();
@@ -327,27 +354,37 @@ fn bad_input_is_a_typed_error() {
     ));
     assert!(matches!(
         sys.add_particle(Vec3::ZERO, -1.0),
-        Err(AnatomyError::InvalidParameter { name: "mass_kg", .. })
+        Err(AnatomyError::InvalidParameter {
+            name: "mass_kg",
+            ..
+        })
     ));
     assert!(matches!(
         sys.add_spring(0, 1_000_000, 1.0, 1.0),
-        Err(AnatomyError::IndexOutOfRange { what: "particle", .. })
+        Err(AnatomyError::IndexOutOfRange {
+            what: "particle",
+            ..
+        })
     ));
     let b = sys.add_bone(&bone()).unwrap();
     assert_eq!(
         sys.set_kinematic_pose(b, Quat::IDENTITY, Vec3::ZERO),
         Err(AnatomyError::NotKinematic { body: b })
     );
-    assert!(AnatomySystem::new(DynamicsConfig {
-        drag: 1.0,
-        ..Default::default()
-    })
-    .is_err());
-    assert!(AnatomySystem::new(DynamicsConfig {
-        substeps: 0,
-        ..Default::default()
-    })
-    .is_err());
+    assert!(
+        AnatomySystem::new(DynamicsConfig {
+            drag: 1.0,
+            ..Default::default()
+        })
+        .is_err()
+    );
+    assert!(
+        AnatomySystem::new(DynamicsConfig {
+            substeps: 0,
+            ..Default::default()
+        })
+        .is_err()
+    );
 }
 
 #[test]
@@ -368,4 +405,45 @@ fn a_diverging_step_is_rolled_back() {
     assert!(matches!(err, Some(AnatomyError::Diverged { .. })));
     assert!(sys.positions().iter().all(|p| p.is_finite()));
     let _ = before;
+}
+
+#[test]
+fn muscle_particles_do_not_pass_through_a_bone() {
+    let (mut sys, m) = free_muscle(0.05, 4e-6);
+    // A kinematic slab pushed sideways into the middle of the muscle (radius 1 cm along z).
+    let (lo, hi) = (Vec3::new(0.012, -0.03, 0.04), Vec3::new(0.03, 0.03, 0.06));
+    let slab = sys
+        .add_bone(&BoneDesc::new(box_mesh(lo, hi, 2).unwrap(), 0.01).with_kind(BoneKind::Kinematic))
+        .unwrap();
+    sys.add_bone_contact(m, slab).unwrap();
+    let muscle = sys.muscle(m).unwrap().particles();
+    let push = 0.008;
+    let inside_final = |x: Vec3| {
+        let (blo, bhi) = (
+            lo - Vec3::new(push, 0.0, 0.0),
+            hi - Vec3::new(push, 0.0, 0.0),
+        );
+        (x - blo).min(bhi - x).min_element() > 0.0
+    };
+    // At rest, some muscle particles sit where the slab will end up.
+    let in_the_way = muscle
+        .clone()
+        .filter(|&p| inside_final(sys.positions()[p]))
+        .count();
+    assert!(in_the_way > 5, "{in_the_way} particles in the slab's way");
+    for step in 1..=200 {
+        let dx = push * (step as f32 / 100.0).min(1.0);
+        sys.set_kinematic_pose(slab, Quat::IDENTITY, Vec3::new(-dx, 0.0, 0.0))
+            .unwrap();
+        sys.step().unwrap();
+        let (blo, bhi) = (lo - Vec3::new(dx, 0.0, 0.0), hi - Vec3::new(dx, 0.0, 0.0));
+        for p in muscle.clone() {
+            let x = sys.positions()[p];
+            let depth = (x - blo).min(bhi - x).min_element();
+            assert!(
+                depth < 1e-6,
+                "step {step}: particle {p} is {depth} m inside the bone"
+            );
+        }
+    }
 }
