@@ -7,6 +7,9 @@ use glam::{Vec2, Vec3};
 use super::{AnatomyError, non_negative, positive};
 use crate::mesh::{NO_TRIANGLE, TriMesh};
 
+/// Upper bound on the triangles of one cross-section, against runaway memory use.
+const MAX_SECTION_TRIANGLES: f32 = 1e7;
+
 /// Parameters of a muscle lattice.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MuscleConfig {
@@ -159,11 +162,20 @@ impl MuscleLattice {
             })
             .collect::<Result<_, _>>()?;
         let props: Vec<(f32, Vec2)> = outlines.iter().map(|o| area_centroid(o)).collect();
+        if let Some(j) = props.iter().position(|(a, c)| !(c.is_finite() && *a > 0.0)) {
+            return Err(AnatomyError::NoCrossSection { section: j });
+        }
         let main = (0..props.len()).fold(
             0,
             |best, j| if props[j].0 > props[best].0 { j } else { best },
         );
         let (main_area, main_c) = props[main];
+        if main_area / config.cell_area_m2 > MAX_SECTION_TRIANGLES {
+            return Err(AnatomyError::InvalidParameter {
+                name: "cell_area_m2 (too small: over 10 million triangles per section)",
+                value: config.cell_area_m2,
+            });
+        }
         let (points, triangles) = fill(&outlines[main], main_c, config.cell_area_m2);
         if triangles.is_empty() {
             return Err(AnatomyError::EmptyLattice {
