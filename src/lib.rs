@@ -15,6 +15,7 @@
 //! | [`fem`] | constant-strain membrane FEM, the reference the springs are measured against |
 //! | [`paper`] | the source paper's experiments, reproducible |
 
+pub mod anatomy;
 pub mod bench;
 pub mod ecs;
 pub mod export;

@@ -1,5 +1,6 @@
 //! Integration tests, one binary: each area in its own module folder.
 
+mod anatomy;
 mod core;
 mod ecs;
 mod export;
