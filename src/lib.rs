@@ -13,7 +13,16 @@
 //! | [`stiffness`] | per-edge spring stiffness (Van Gelder Eq. 27, 29, 30, baselines) |
 //! | [`solver`] | spring forces and energy, quasi-static relaxation |
 //! | [`fem`] | constant-strain membrane FEM, the reference the springs are measured against |
-//! | [`paper`] | the source paper's experiments, reproducible |
+//! | [`ecs`] | skin components, the frame's system sets and systems, [`ecs::DermisPlugin`] |
+//! | [`anatomy`] | muscles and bones: velocity Verlet, pressure cells, rigid bones, lattices |
+//! | [`export`] | frame sinks: animated glTF, OBJ/PLY sequences, USD; strain colours |
+//! | [`io`] | mesh and load files, atomic writes |
+//! | [`paper`] | the source papers' experiments, reproducible |
+//! | [`bench`](mod@bench) | the standard performance workloads behind `dermis bench` |
+//!
+//! # Guide
+//!
+#![doc = include_str!("guide.md")]
 
 pub mod anatomy;
 pub mod bench;

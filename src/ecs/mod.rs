@@ -1,6 +1,8 @@
 //! Skin as ECS: components, the frame's system sets, the stiffness and relaxation systems, and
 //! [`DermisPlugin`].
-#![doc = include_str!("README.md")]
+//!
+//! The [crate-level guide](crate) walks through a standalone `World`, the frame pipeline, the
+//! feature flags and an FAQ.
 
 mod components;
 mod spawn;
