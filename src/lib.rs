@@ -15,6 +15,7 @@
 //! | [`fem`] | constant-strain membrane FEM, the reference the springs are measured against |
 //! | [`paper`] | the source paper's experiments, reproducible |
 
+pub mod animation;
 pub mod fem;
 pub mod io;
 pub mod mesh;
