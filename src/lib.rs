@@ -17,6 +17,7 @@
 
 pub mod animation;
 pub mod fem;
+pub mod gltf;
 pub mod io;
 pub mod mesh;
 pub mod paper;
