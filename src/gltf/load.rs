@@ -71,6 +71,49 @@ fn without_untargeted_channels(json_bytes: &[u8]) -> Option<(Vec<u8>, Vec<String
     Some((serde_json::to_vec(&value).ok()?, warnings))
 }
 
+/// Checks what the `gltf` crate's validation skips (or indexes before checking): primitive
+/// POSITION accessor indices, animation channel target nodes and paths.
+fn check_channels(root: &json::Root) -> Result<(), GltfError> {
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let position = prim
+                .attributes
+                .get(&json::validation::Checked::Valid(json::mesh::Semantic::Positions));
+            if let Some(i) = position {
+                if i.value() >= root.accessors.len() {
+                    return Err(GltfError::Json {
+                        reason: format!(
+                            "meshes[{m}].primitives[{p}].attributes.POSITION: accessor {} does not exist ({} accessors)",
+                            i.value(),
+                            root.accessors.len()
+                        ),
+                    });
+                }
+            }
+        }
+    }
+    for (a, anim) in root.animations.iter().enumerate() {
+        for (c, ch) in anim.channels.iter().enumerate() {
+            let at = format!("animations[{a}].channels[{c}].target");
+            if ch.target.node.value() >= root.nodes.len() {
+                return Err(GltfError::Json {
+                    reason: format!(
+                        "{at}.node: node {} does not exist ({} nodes)",
+                        ch.target.node.value(),
+                        root.nodes.len()
+                    ),
+                });
+            }
+            if !matches!(ch.target.path, json::validation::Checked::Valid(_)) {
+                return Err(GltfError::Json {
+                    reason: format!("{at}.path: not translation, rotation, scale or weights"),
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
 fn parse_document(json_bytes: &[u8]) -> Result<(Document, Vec<String>), GltfError> {
     let root = match serde_json::from_slice::<json::Root>(json_bytes) {
         Ok(root) => (root, Vec::new()),
@@ -85,6 +128,7 @@ fn parse_document(json_bytes: &[u8]) -> Result<(Document, Vec<String>), GltfErro
             })?
         }
     };
+    check_channels(&root.0)?;
     let doc = Document::from_json(root.0).map_err(|e| GltfError::Json {
         reason: match e {
             ::gltf::Error::Validation(list) => list

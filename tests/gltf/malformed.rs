@@ -166,7 +166,9 @@ fn corrupted_variants_of_the_arm_never_panic() {
         state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
         (state >> 33) as usize
     };
-    for k in 0..400 {
+    // DERMIS_FUZZ_VARIANTS raises the count for a longer local run.
+    let n: usize = std::env::var("DERMIS_FUZZ_VARIANTS").ok().and_then(|v| v.parse().ok()).unwrap_or(400);
+    for k in 0..n {
         let mut v = arm.clone();
         match k % 4 {
             0 => {
