@@ -184,7 +184,9 @@ impl Sampler {
     fn sample(&self, t: f32) -> Sampled {
         let (k0, k1, s, dt) = self.segment(t);
         match (&self.values, self.interpolation) {
-            (Keyframes::Translation(v), i) => Sampled::Translation(sample_vec3(v, i, k0, k1, s, dt)),
+            (Keyframes::Translation(v), i) => {
+                Sampled::Translation(sample_vec3(v, i, k0, k1, s, dt))
+            }
             (Keyframes::Scale(v), i) => Sampled::Scale(sample_vec3(v, i, k0, k1, s, dt)),
             (Keyframes::Rotation(v), Interpolation::Step) => Sampled::Rotation(v[k0].normalize()),
             (Keyframes::Rotation(v), Interpolation::Linear) => {
@@ -253,7 +255,14 @@ fn hermite(p0: Vec4, m0: Vec4, p1: Vec4, m1: Vec4, s: f32) -> Vec4 {
 }
 
 fn hermite_f32(p0: f32, m0: f32, p1: f32, m1: f32, s: f32) -> f32 {
-    hermite(Vec4::splat(p0), Vec4::splat(m0), Vec4::splat(p1), Vec4::splat(m1), s).x
+    hermite(
+        Vec4::splat(p0),
+        Vec4::splat(m0),
+        Vec4::splat(p1),
+        Vec4::splat(m1),
+        s,
+    )
+    .x
 }
 
 /// Spherical linear interpolation from `a` to `b` along the shorter arc (`b` is negated when
@@ -372,7 +381,10 @@ mod tests {
             vec![0.0, 0.0],
             Keyframes::Translation(vec![Vec3::ZERO; 2]),
         );
-        assert_eq!(e, Err(AnimationError::UnsortedKeyframes { key: 1, time: 0.0 }));
+        assert_eq!(
+            e,
+            Err(AnimationError::UnsortedKeyframes { key: 1, time: 0.0 })
+        );
     }
 
     #[test]
@@ -384,8 +396,12 @@ mod tests {
             let d = Vec3::new(3.0 * t * t, 0.0, 0.0);
             values.extend([d, Vec3::new(t * t * t, 0.0, 0.0), d]);
         }
-        let s = Sampler::new(Interpolation::CubicSpline, times, Keyframes::Translation(values))
-            .unwrap();
+        let s = Sampler::new(
+            Interpolation::CubicSpline,
+            times,
+            Keyframes::Translation(values),
+        )
+        .unwrap();
         for t in [0.25f32, 0.5, 1.3, 1.9] {
             let Sampled::Translation(v) = s.sample(t) else {
                 panic!("translation expected")
@@ -394,6 +410,9 @@ mod tests {
         }
         // Clamped outside the key range.
         assert_eq!(s.sample(-1.0), Sampled::Translation(Vec3::ZERO));
-        assert_eq!(s.sample(5.0), Sampled::Translation(Vec3::new(8.0, 0.0, 0.0)));
+        assert_eq!(
+            s.sample(5.0),
+            Sampled::Translation(Vec3::new(8.0, 0.0, 0.0))
+        );
     }
 }

@@ -74,14 +74,14 @@ impl Hierarchy {
             });
         }
         for (node, p) in parents.iter().enumerate() {
-            if let Some(p) = *p {
-                if p as usize >= n {
-                    return Err(AnimationError::ParentOutOfRange {
-                        node,
-                        parent: p as usize,
-                        node_count: n,
-                    });
-                }
+            if let Some(p) = *p
+                && p as usize >= n
+            {
+                return Err(AnimationError::ParentOutOfRange {
+                    node,
+                    parent: p as usize,
+                    node_count: n,
+                });
             }
         }
         // Depth of each node, by walking up with a step bound that detects cycles.
@@ -145,7 +145,9 @@ impl Hierarchy {
         let mut globals = vec![Mat4::IDENTITY; self.len()];
         for &i in &self.order {
             let i = i as usize;
-            let local = locals.get(i).map_or(Mat4::IDENTITY, LocalTransform::to_mat4);
+            let local = locals
+                .get(i)
+                .map_or(Mat4::IDENTITY, LocalTransform::to_mat4);
             globals[i] = match self.parents[i] {
                 Some(p) => globals[p as usize] * local,
                 None => local,
@@ -207,9 +209,13 @@ mod tests {
     #[test]
     fn children_listed_before_parents_still_evaluate_parents_first() {
         // Node 0 is the child of node 2, which is the child of node 1.
-        let t = |x: f32| LocalTransform::from_trs(Vec3::new(x, 0.0, 0.0), Quat::IDENTITY, Vec3::ONE);
-        let h = Hierarchy::new(vec![Some(2), None, Some(1)], vec![t(1.0), t(10.0), t(100.0)])
-            .unwrap();
+        let t =
+            |x: f32| LocalTransform::from_trs(Vec3::new(x, 0.0, 0.0), Quat::IDENTITY, Vec3::ONE);
+        let h = Hierarchy::new(
+            vec![Some(2), None, Some(1)],
+            vec![t(1.0), t(10.0), t(100.0)],
+        )
+        .unwrap();
         assert_eq!(h.order(), &[1, 2, 0]);
         let g = h.global_transforms(h.rest());
         assert_relative_eq!(g[0].w_axis.x, 111.0);
@@ -225,7 +231,11 @@ mod tests {
         );
         assert!(matches!(
             Hierarchy::new(vec![None, Some(7), None], r),
-            Err(AnimationError::ParentOutOfRange { node: 1, parent: 7, .. })
+            Err(AnimationError::ParentOutOfRange {
+                node: 1,
+                parent: 7,
+                ..
+            })
         ));
     }
 }

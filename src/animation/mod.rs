@@ -73,7 +73,9 @@ pub enum AnimationError {
     },
     /// A sampler has a different number of output values than its keyframe times require
     /// (one per key, three per key for CUBICSPLINE, times the morph-target count for weights).
-    #[error("sampler has {inputs} keyframe times, so {expected} output values are required, found {outputs}")]
+    #[error(
+        "sampler has {inputs} keyframe times, so {expected} output values are required, found {outputs}"
+    )]
     SamplerCountMismatch {
         /// Number of keyframe times.
         inputs: usize,
@@ -94,7 +96,9 @@ pub enum AnimationError {
     #[error("sampler has no keyframes")]
     NoKeyframes,
     /// Influence arrays do not hold `vertices * per_vertex` entries.
-    #[error("influences need {expected} joint and weight entries, found {joints} joints and {weights} weights")]
+    #[error(
+        "influences need {expected} joint and weight entries, found {joints} joints and {weights} weights"
+    )]
     InfluenceLength {
         /// Entries required.
         expected: usize,

@@ -28,10 +28,13 @@ impl Influences {
     ) -> Result<Self, AnimationError> {
         let ok = per_vertex > 0
             && joints.len() == weights.len()
-            && joints.len() % per_vertex == 0;
+            && joints.len().is_multiple_of(per_vertex);
         if !ok {
             return Err(AnimationError::InfluenceLength {
-                expected: joints.len().max(weights.len()).next_multiple_of(per_vertex.max(1)),
+                expected: joints
+                    .len()
+                    .max(weights.len())
+                    .next_multiple_of(per_vertex.max(1)),
                 joints: joints.len(),
                 weights: weights.len(),
             });
@@ -117,10 +120,10 @@ impl Influences {
 fn blend(v: usize, influences: &Influences, joints: &[Mat4], f: impl Fn(&Mat4) -> Vec3) -> Vec3 {
     let mut acc = Vec3::ZERO;
     for (&j, &w) in influences.joints_of(v).iter().zip(influences.weights_of(v)) {
-        if w != 0.0 {
-            if let Some(m) = joints.get(j as usize) {
-                acc += w * f(m);
-            }
+        if w != 0.0
+            && let Some(m) = joints.get(j as usize)
+        {
+            acc += w * f(m);
         }
     }
     acc
@@ -188,7 +191,10 @@ mod tests {
     #[test]
     fn weights_renormalise_and_zero_weights_are_rejected() {
         let mut i = Influences::new(2, vec![0, 1, 0, 1], vec![1.0, 3.0, 0.0, -1.0]).unwrap();
-        assert_eq!(i.normalize(), Err(AnimationError::ZeroWeights { vertex: 1 }));
+        assert_eq!(
+            i.normalize(),
+            Err(AnimationError::ZeroWeights { vertex: 1 })
+        );
         let mut i = Influences::new(2, vec![0, 1], vec![1.0, 3.0]).unwrap();
         i.normalize().unwrap();
         assert_eq!(i.weights_of(0), &[0.25, 0.75]);
@@ -214,7 +220,10 @@ mod tests {
         let mut inf = Influences::new(2, (0..n).flat_map(|_| [0, 1]).collect(), w).unwrap();
         inf.normalize().unwrap();
         let a = skin_positions(&positions, &inf, &joints);
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
         let b = pool.install(|| skin_positions(&positions, &inf, &joints));
         assert_eq!(a, b);
         let p = positions[5];

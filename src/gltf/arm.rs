@@ -130,7 +130,11 @@ fn normals(positions: &[[f32; 3]], triangles: &[[u16; 3]]) -> Vec<[f32; 3]> {
     acc.into_iter()
         .map(|n| {
             let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if l > 0.0 { n.map(|x| x / l) } else { [1.0, 0.0, 0.0] }
+            if l > 0.0 {
+                n.map(|x| x / l)
+            } else {
+                [1.0, 0.0, 0.0]
+            }
         })
         .collect()
 }
@@ -145,10 +149,11 @@ struct Bin {
 
 impl Bin {
     fn view(&mut self, data: &[u8], target: Option<u32>) -> usize {
-        while self.bytes.len() % 4 != 0 {
+        while !self.bytes.len().is_multiple_of(4) {
             self.bytes.push(0);
         }
-        let mut v = json!({ "buffer": 0, "byteOffset": self.bytes.len(), "byteLength": data.len() });
+        let mut v =
+            json!({ "buffer": 0, "byteOffset": self.bytes.len(), "byteLength": data.len() });
         if let Some(t) = target {
             v["target"] = json!(t);
         }
@@ -157,7 +162,14 @@ impl Bin {
         self.views.len() - 1
     }
 
-    fn floats(&mut self, data: &[f32], ty: &str, width: usize, target: Option<u32>, bounds: bool) -> usize {
+    fn floats(
+        &mut self,
+        data: &[f32],
+        ty: &str,
+        width: usize,
+        target: Option<u32>,
+        bounds: bool,
+    ) -> usize {
         let bytes: Vec<u8> = data.iter().flat_map(|x| x.to_le_bytes()).collect();
         let view = self.view(&bytes, target);
         let mut a = json!({
@@ -165,10 +177,22 @@ impl Bin {
         });
         if bounds {
             let min: Vec<f32> = (0..width)
-                .map(|k| data.iter().skip(k).step_by(width).copied().fold(f32::INFINITY, f32::min))
+                .map(|k| {
+                    data.iter()
+                        .skip(k)
+                        .step_by(width)
+                        .copied()
+                        .fold(f32::INFINITY, f32::min)
+                })
                 .collect();
             let max: Vec<f32> = (0..width)
-                .map(|k| data.iter().skip(k).step_by(width).copied().fold(f32::NEG_INFINITY, f32::max))
+                .map(|k| {
+                    data.iter()
+                        .skip(k)
+                        .step_by(width)
+                        .copied()
+                        .fold(f32::NEG_INFINITY, f32::max)
+                })
                 .collect();
             a["min"] = json!(min);
             a["max"] = json!(max);
@@ -197,13 +221,18 @@ impl Bin {
 }
 
 /// Rebuilds every JSON object with its keys in sorted order, so the text is the same whether
-/// or not serde_json keeps insertion order.
+/// or not `serde_json` keeps insertion order.
 fn canonical(v: Value) -> Value {
     match v {
         Value::Object(map) => {
             let mut entries: Vec<(String, Value)> = map.into_iter().collect();
             entries.sort_by(|a, b| a.0.cmp(&b.0));
-            Value::Object(entries.into_iter().map(|(k, v)| (k, canonical(v))).collect())
+            Value::Object(
+                entries
+                    .into_iter()
+                    .map(|(k, v)| (k, canonical(v)))
+                    .collect(),
+            )
         }
         Value::Array(a) => Value::Array(a.into_iter().map(canonical).collect()),
         other => other,
@@ -272,11 +301,41 @@ fn parts() -> Vec<Part> {
     let biceps_t = radial(&biceps, 0.45);
     let triceps_t = radial(&triceps, -0.25);
     vec![
-        Part { name: "humerus", role: "bone", lathe: humerus, elbow_weight: humerus_w, target: None },
-        Part { name: "forearm_bones", role: "bone", lathe: forearm, elbow_weight: forearm_w, target: None },
-        Part { name: "biceps", role: "muscle", lathe: biceps, elbow_weight: biceps_w, target: Some(("flex", biceps_t)) },
-        Part { name: "triceps", role: "muscle", lathe: triceps, elbow_weight: triceps_w, target: Some(("stretch", triceps_t)) },
-        Part { name: "arm_skin", role: "skin", lathe: skin, elbow_weight: skin_w, target: None },
+        Part {
+            name: "humerus",
+            role: "bone",
+            lathe: humerus,
+            elbow_weight: humerus_w,
+            target: None,
+        },
+        Part {
+            name: "forearm_bones",
+            role: "bone",
+            lathe: forearm,
+            elbow_weight: forearm_w,
+            target: None,
+        },
+        Part {
+            name: "biceps",
+            role: "muscle",
+            lathe: biceps,
+            elbow_weight: biceps_w,
+            target: Some(("flex", biceps_t)),
+        },
+        Part {
+            name: "triceps",
+            role: "muscle",
+            lathe: triceps,
+            elbow_weight: triceps_w,
+            target: Some(("stretch", triceps_t)),
+        },
+        Part {
+            name: "arm_skin",
+            role: "skin",
+            lathe: skin,
+            elbow_weight: skin_w,
+            target: None,
+        },
     ]
 }
 
@@ -294,10 +353,17 @@ pub fn build_arm_glb() -> Vec<u8> {
         let l = &part.lathe;
         let flat: Vec<f32> = l.positions.iter().flatten().copied().collect();
         let pos = bin.floats(&flat, "VEC3", 3, Some(34962), true);
-        let nrm: Vec<f32> = normals(&l.positions, &l.triangles).into_iter().flatten().collect();
+        let nrm: Vec<f32> = normals(&l.positions, &l.triangles)
+            .into_iter()
+            .flatten()
+            .collect();
         let nrm = bin.floats(&nrm, "VEC3", 3, Some(34962), false);
         let joints = bin.joints(&vec![[0, 1, 0, 0]; l.positions.len()]);
-        let w: Vec<f32> = part.elbow_weight.iter().flat_map(|&w| [1.0 - w, w, 0.0, 0.0]).collect();
+        let w: Vec<f32> = part
+            .elbow_weight
+            .iter()
+            .flat_map(|&w| [1.0 - w, w, 0.0, 0.0])
+            .collect();
         let weights = bin.floats(&w, "VEC4", 4, Some(34962), false);
         let idx: Vec<u16> = l.triangles.iter().flatten().copied().collect();
         let indices = bin.u16s(&idx, 34963);
@@ -360,10 +426,11 @@ pub fn build_arm_glb() -> Vec<u8> {
     let mut samplers = vec![json!({ "input": input, "output": rot, "interpolation": "LINEAR" })];
     let mut channels = vec![json!({ "sampler": 0, "target": { "node": 1, "path": "rotation" } })];
     for &n in &morph_nodes {
-        channels.push(json!({ "sampler": samplers.len(), "target": { "node": n, "path": "weights" } }));
+        channels
+            .push(json!({ "sampler": samplers.len(), "target": { "node": n, "path": "weights" } }));
         samplers.push(json!({ "input": input, "output": wts, "interpolation": "LINEAR" }));
     }
-    while bin.bytes.len() % 4 != 0 {
+    while !bin.bytes.len().is_multiple_of(4) {
         bin.bytes.push(0);
     }
     let node_count = nodes.len();
@@ -380,7 +447,7 @@ pub fn build_arm_glb() -> Vec<u8> {
         "buffers": [{ "byteLength": bin.bytes.len() }],
     });
     let mut text = serde_json::to_vec(&canonical(doc)).unwrap_or_default();
-    while text.len() % 4 != 0 {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
     let length = 12 + 8 + text.len() + 8 + bin.bytes.len();
@@ -406,7 +473,10 @@ mod tests {
         for k in 0..=64 {
             let x = k as f64 * std::f64::consts::TAU / 64.0;
             let (s, c) = sin_cos(x);
-            assert!((s - x.sin()).abs() < 1e-13 && (c - x.cos()).abs() < 1e-13, "x = {x}");
+            assert!(
+                (s - x.sin()).abs() < 1e-13 && (c - x.cos()).abs() < 1e-13,
+                "x = {x}"
+            );
         }
     }
 
@@ -414,8 +484,12 @@ mod tests {
     fn every_part_is_a_closed_outward_surface() {
         for part in parts() {
             let pos: Vec<glam::Vec3> = part.lathe.positions.iter().map(|&p| p.into()).collect();
-            let tris: Vec<[u32; 3]> =
-                part.lathe.triangles.iter().map(|t| t.map(u32::from)).collect();
+            let tris: Vec<[u32; 3]> = part
+                .lathe
+                .triangles
+                .iter()
+                .map(|t| t.map(u32::from))
+                .collect();
             let mesh = crate::mesh::TriMesh::new(pos.clone(), tris.clone()).unwrap();
             assert!(mesh.topology().is_closed(), "{} is open", part.name);
             // Divergence theorem: signed volume is positive for outward triangles.

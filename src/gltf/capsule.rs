@@ -80,7 +80,8 @@ pub fn fit_capsules(hierarchy: &Hierarchy, skin: &Skin, mesh: &Mesh) -> Vec<Caps
     for prim in &mesh.primitives {
         if let Some(inf) = &prim.influences {
             for (v, j) in inf.dominant_joints().into_iter().enumerate() {
-                if let (Some(list), Some(p)) = (dominated.get_mut(j as usize), prim.positions.get(v))
+                if let (Some(list), Some(p)) =
+                    (dominated.get_mut(j as usize), prim.positions.get(v))
                 {
                     list.push(*p);
                 }
@@ -112,7 +113,10 @@ pub fn fit_capsules(hierarchy: &Hierarchy, skin: &Skin, mesh: &Mesh) -> Vec<Caps
                 .iter()
                 .enumerate()
                 .map(|(s, b)| (s, distance_to_segment(*v, a, *b)))
-                .fold((0, f32::INFINITY), |acc, x| if x.1 < acc.1 { x } else { acc });
+                .fold(
+                    (0, f32::INFINITY),
+                    |acc, x| if x.1 < acc.1 { x } else { acc },
+                );
             per_segment[best].push(dist);
         }
         for (b, mut d) in ends.into_iter().zip(per_segment) {
@@ -156,9 +160,12 @@ mod tests {
             }
         }
         let n = positions.len();
-        let influences =
-            Influences::new(4, vec![0; 4 * n], (0..n).flat_map(|_| [1.0, 0.0, 0.0, 0.0]).collect())
-                .unwrap();
+        let influences = Influences::new(
+            4,
+            vec![0; 4 * n],
+            (0..n).flat_map(|_| [1.0, 0.0, 0.0, 0.0]).collect(),
+        )
+        .unwrap();
         let mesh = Mesh {
             name: "skin".into(),
             role: None,

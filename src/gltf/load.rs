@@ -19,14 +19,20 @@ use crate::animation::{
     Channel, Clip, Hierarchy, Influences, Interpolation, Keyframes, LocalTransform, Sampler, Skin,
 };
 
+/// JSON text and the optional BIN chunk of a container.
+type Split<'a> = (Cow<'a, [u8]>, Option<Vec<u8>>);
+
 /// Splits a `.glb` into JSON and BIN chunks, or passes `.gltf` JSON through.
-fn split_container(bytes: &[u8]) -> Result<(Cow<'_, [u8]>, Option<Vec<u8>>), GltfError> {
+fn split_container(bytes: &[u8]) -> Result<Split<'_>, GltfError> {
     if !bytes.starts_with(b"glTF") {
         return Ok((Cow::Borrowed(bytes), None));
     }
     let glb = |reason: String| GltfError::Glb { reason };
     let Some(header) = bytes.get(8..12) else {
-        return Err(glb(format!("file is {} bytes, shorter than the 12-byte header", bytes.len())));
+        return Err(glb(format!(
+            "file is {} bytes, shorter than the 12-byte header",
+            bytes.len()
+        )));
     };
     let length = u32::from_le_bytes([header[0], header[1], header[2], header[3]]) as usize;
     if length < 20 || length > bytes.len() {
@@ -35,8 +41,8 @@ fn split_container(bytes: &[u8]) -> Result<(Cow<'_, [u8]>, Option<Vec<u8>>), Glt
             bytes.len()
         )));
     }
-    let parsed = ::gltf::binary::Glb::from_slice(&bytes[..length])
-        .map_err(|e| glb(e.to_string()))?;
+    let parsed =
+        ::gltf::binary::Glb::from_slice(&bytes[..length]).map_err(|e| glb(e.to_string()))?;
     Ok((
         Cow::Owned(parsed.json.into_owned()),
         parsed.bin.map(Cow::into_owned),
@@ -76,19 +82,19 @@ fn without_untargeted_channels(json_bytes: &[u8]) -> Option<(Vec<u8>, Vec<String
 fn check_channels(root: &json::Root) -> Result<(), GltfError> {
     for (m, mesh) in root.meshes.iter().enumerate() {
         for (p, prim) in mesh.primitives.iter().enumerate() {
-            let position = prim
-                .attributes
-                .get(&json::validation::Checked::Valid(json::mesh::Semantic::Positions));
-            if let Some(i) = position {
-                if i.value() >= root.accessors.len() {
-                    return Err(GltfError::Json {
-                        reason: format!(
-                            "meshes[{m}].primitives[{p}].attributes.POSITION: accessor {} does not exist ({} accessors)",
-                            i.value(),
-                            root.accessors.len()
-                        ),
-                    });
-                }
+            let position = prim.attributes.get(&json::validation::Checked::Valid(
+                json::mesh::Semantic::Positions,
+            ));
+            if let Some(i) = position
+                && i.value() >= root.accessors.len()
+            {
+                return Err(GltfError::Json {
+                    reason: format!(
+                        "meshes[{m}].primitives[{p}].attributes.POSITION: accessor {} does not exist ({} accessors)",
+                        i.value(),
+                        root.accessors.len()
+                    ),
+                });
             }
         }
     }
@@ -188,10 +194,14 @@ fn role_from_extras(extras: &json::Extras) -> Option<Role> {
 
 fn role_from_name(name: &str) -> Option<Role> {
     let n = name.to_ascii_lowercase();
-    [("skin", Role::Skin), ("muscle", Role::Muscle), ("bone", Role::Bone)]
-        .into_iter()
-        .find(|(k, _)| n.contains(k))
-        .map(|(_, r)| r)
+    [
+        ("skin", Role::Skin),
+        ("muscle", Role::Muscle),
+        ("bone", Role::Bone),
+    ]
+    .into_iter()
+    .find(|(k, _)| n.contains(k))
+    .map(|(_, r)| r)
 }
 
 fn triangles_of(mode: Mode, idx: &[u32]) -> Vec<[u32; 3]> {
@@ -245,7 +255,9 @@ fn load_primitive(
         None => (0..n as u32).collect(),
     };
     if let Some((i, &bad)) = indices.iter().enumerate().find(|(_, x)| **x as usize >= n) {
-        return Err(perr(format!("index {i} is {bad} but there are {n} vertices")));
+        return Err(perr(format!(
+            "index {i} is {bad} but there are {n} vertices"
+        )));
     }
     let triangles = triangles_of(prim.mode(), &indices);
 
@@ -256,8 +268,18 @@ fn load_primitive(
         prim.get(&Semantic::Joints(sets)),
         prim.get(&Semantic::Weights(sets)),
     ) {
-        let (_, j) = read(&ja, buffers, &[Dimensions::Vec4], &usage(&format!("JOINTS_{sets}")))?;
-        let (_, w) = read(&wa, buffers, &[Dimensions::Vec4], &usage(&format!("WEIGHTS_{sets}")))?;
+        let (_, j) = read(
+            &ja,
+            buffers,
+            &[Dimensions::Vec4],
+            &usage(&format!("JOINTS_{sets}")),
+        )?;
+        let (_, w) = read(
+            &wa,
+            buffers,
+            &[Dimensions::Vec4],
+            &usage(&format!("WEIGHTS_{sets}")),
+        )?;
         if j.len() != 4 * n || w.len() != 4 * n {
             return Err(perr(format!(
                 "JOINTS_{sets}/WEIGHTS_{sets} have {}/{} entries for {n} vertices",
@@ -291,7 +313,11 @@ fn load_primitive(
             None => vec![Vec3::ZERO; n],
         };
         let normals = match target.normals() {
-            Some(a) => Some(read_vec3(&a, buffers, &usage(&format!("target {t} NORMAL")))?),
+            Some(a) => Some(read_vec3(
+                &a,
+                buffers,
+                &usage(&format!("target {t} NORMAL")),
+            )?),
             None => None,
         };
         if positions.len() != n || normals.as_ref().is_some_and(|v| v.len() != n) {
@@ -341,7 +367,9 @@ pub(crate) fn load_slice(
             if parents[c].is_none() && c != node.index() {
                 parents[c] = Some(node.index() as u32);
             } else {
-                warnings.push(format!("node {c} has more than one parent; extra links ignored"));
+                warnings.push(format!(
+                    "node {c} has more than one parent; extra links ignored"
+                ));
             }
         }
     }
@@ -368,7 +396,11 @@ pub(crate) fn load_slice(
         for prim in mesh.primitives() {
             primitives.push(load_primitive(&prim, m, &buffers)?);
         }
-        let target_count = primitives.iter().map(|p| p.targets.len()).max().unwrap_or(0);
+        let target_count = primitives
+            .iter()
+            .map(|p| p.targets.len())
+            .max()
+            .unwrap_or(0);
         let weights = mesh
             .weights()
             .map_or_else(|| vec![0.0; target_count], <[f32]>::to_vec);
@@ -390,7 +422,12 @@ pub(crate) fn load_slice(
         let joints: Vec<u32> = skin.joints().map(|j| j.index() as u32).collect();
         let inverse_bind = match skin.inverse_bind_matrices() {
             Some(a) => {
-                let (_, v) = read(&a, &buffers, &[Dimensions::Mat4], &format!("skin {s} inverseBindMatrices"))?;
+                let (_, v) = read(
+                    &a,
+                    &buffers,
+                    &[Dimensions::Mat4],
+                    &format!("skin {s} inverseBindMatrices"),
+                )?;
                 v.chunks_exact(16)
                     .map(|c| {
                         let f: [f32; 16] = std::array::from_fn(|i| c[i] as f32);
@@ -448,8 +485,7 @@ pub(crate) fn load_slice(
             let Some(inf) = prim.influences.as_mut() else {
                 continue;
             };
-            if let Err(crate::animation::AnimationError::ZeroWeights { vertex }) = inf.normalize()
-            {
+            if let Err(crate::animation::AnimationError::ZeroWeights { vertex }) = inf.normalize() {
                 if skinned_mesh[m] {
                     return Err(GltfError::ZeroWeights {
                         mesh: m,
@@ -490,7 +526,9 @@ pub(crate) fn load_slice(
                     let (_, v) = read(&out, &buffers, &[Dimensions::Vec4], &usage("output"))?;
                     Keyframes::Rotation(
                         v.chunks_exact(4)
-                            .map(|q| Quat::from_xyzw(q[0] as f32, q[1] as f32, q[2] as f32, q[3] as f32))
+                            .map(|q| {
+                                Quat::from_xyzw(q[0] as f32, q[1] as f32, q[2] as f32, q[3] as f32)
+                            })
                             .collect(),
                     )
                 }
@@ -501,9 +539,13 @@ pub(crate) fn load_slice(
                         .and_then(|m| meshes.get(m as usize))
                         .map(|m| m.weights.len())
                         .filter(|&k| k > 0);
-                    let per_key = if interpolation == Interpolation::CubicSpline { 3 } else { 1 };
-                    let targets = from_mesh
-                        .unwrap_or_else(|| values.len() / (times.len() * per_key).max(1));
+                    let per_key = if interpolation == Interpolation::CubicSpline {
+                        3
+                    } else {
+                        1
+                    };
+                    let targets =
+                        from_mesh.unwrap_or_else(|| values.len() / (times.len() * per_key).max(1));
                     Keyframes::Weights { targets, values }
                 }
             };
@@ -538,11 +580,8 @@ pub(crate) fn load_slice(
             .as_ref()
             .and_then(|jm| role_from_extras(jm.extras()))
             .or_else(|| users.iter().find_map(|n| role_from_extras(n.extras())));
-        let from_name = role_from_name(&mesh.name).or_else(|| {
-            users
-                .iter()
-                .find_map(|n| n.name().and_then(role_from_name))
-        });
+        let from_name = role_from_name(&mesh.name)
+            .or_else(|| users.iter().find_map(|n| n.name().and_then(role_from_name)));
         let from_override = options.role_overrides.iter().find_map(|(name, role)| {
             (name == &mesh.name || users.iter().any(|n| n.name() == Some(name.as_str())))
                 .then_some(*role)
@@ -575,10 +614,13 @@ pub(crate) fn load_slice(
                 && n.mesh
                     .is_some_and(|m| meshes[m as usize].role == Some(Role::Skin))
         });
-        if let Some(node) = skin_instance {
-            if let (Some(m), Some(s)) = (node.mesh, node.skin) {
-                capsules = fit_capsules(&hierarchy, &skins[s as usize], &meshes[m as usize]);
-            }
+        if let Some(Node {
+            mesh: Some(m),
+            skin: Some(s),
+            ..
+        }) = skin_instance
+        {
+            capsules = fit_capsules(&hierarchy, &skins[*s as usize], &meshes[*m as usize]);
         }
     }
 

@@ -340,10 +340,10 @@ impl Scene {
         if let Some(i) = self.clips.iter().position(|c| c.name == name_or_index) {
             return Ok(i);
         }
-        if let Ok(i) = name_or_index.parse::<usize>() {
-            if i < self.clips.len() {
-                return Ok(i);
-            }
+        if let Ok(i) = name_or_index.parse::<usize>()
+            && i < self.clips.len()
+        {
+            return Ok(i);
         }
         Err(GltfError::ClipNotFound {
             requested: name_or_index.to_string(),

@@ -124,7 +124,11 @@ impl PosedScene {
     /// Writes Wavefront OBJ: one `o <node name>.<primitive>` object per primitive, its
     /// vertices (and normals) in accessor order, 1-based faces.
     pub fn write_obj(&self, w: &mut impl Write) -> io::Result<()> {
-        writeln!(w, "# dermis pose: clip {:?}, t = {} s", self.clip, self.time_s)?;
+        writeln!(
+            w,
+            "# dermis pose: clip {:?}, t = {} s",
+            self.clip, self.time_s
+        )?;
         let (mut v0, mut n0) = (1usize, 1usize);
         for p in &self.primitives {
             writeln!(w, "o {}", p.name.replace(char::is_whitespace, "_"))?;
@@ -166,12 +170,27 @@ impl PosedScene {
         let nv: usize = self.primitives.iter().map(|p| p.positions.len()).sum();
         let nf: usize = self.primitives.iter().map(|p| p.triangles.len()).sum();
         writeln!(w, "ply\nformat ascii 1.0")?;
-        writeln!(w, "comment dermis pose: clip {:?}, t = {} s", self.clip, self.time_s)?;
+        writeln!(
+            w,
+            "comment dermis pose: clip {:?}, t = {} s",
+            self.clip, self.time_s
+        )?;
         for p in &self.primitives {
-            writeln!(w, "comment object {} vertices {}", p.name, p.positions.len())?;
+            writeln!(
+                w,
+                "comment object {} vertices {}",
+                p.name,
+                p.positions.len()
+            )?;
         }
-        writeln!(w, "element vertex {nv}\nproperty float x\nproperty float y\nproperty float z")?;
-        writeln!(w, "element face {nf}\nproperty list uchar uint vertex_indices\nend_header")?;
+        writeln!(
+            w,
+            "element vertex {nv}\nproperty float x\nproperty float y\nproperty float z"
+        )?;
+        writeln!(
+            w,
+            "element face {nf}\nproperty list uchar uint vertex_indices\nend_header"
+        )?;
         for p in &self.primitives {
             for v in &p.positions {
                 writeln!(w, "{} {} {}", v.x, v.y, v.z)?;

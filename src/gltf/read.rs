@@ -1,7 +1,7 @@
 //! Bounds-checked accessor reading (dense and sparse, any component type, normalised ints).
 
-use ::gltf::accessor::{DataType, Dimensions};
 use ::gltf::Accessor;
+use ::gltf::accessor::{DataType, Dimensions};
 
 use super::GltfError;
 
@@ -63,7 +63,10 @@ fn view_bytes<'b>(
 }
 
 /// Reads `count * n` values starting at byte `offset` of `bytes` with the given stride.
-#[expect(clippy::too_many_arguments, reason = "one call site per dense/sparse part")]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "one call site per dense/sparse part"
+)]
 fn read_elements(
     bytes: &[u8],
     offset: usize,
@@ -174,7 +177,17 @@ pub(crate) fn read(
             ::gltf::accessor::sparse::IndexType::U32 => DataType::U32,
         };
         let sparse_usage = format!("{usage}, sparse indices");
-        let idx = read_elements(ibytes, iv.offset(), k, None, 1, ity, false, index, &sparse_usage)?;
+        let idx = read_elements(
+            ibytes,
+            iv.offset(),
+            k,
+            None,
+            1,
+            ity,
+            false,
+            index,
+            &sparse_usage,
+        )?;
         let vv = sparse.values();
         let vbytes = view_bytes(&vv.view(), buffers, index, usage)?;
         let sparse_usage = format!("{usage}, sparse values");

@@ -26,8 +26,11 @@ fn make_arm_reproduces_the_committed_asset_byte_for_byte() {
 #[test]
 fn the_arm_has_bones_muscles_a_closed_skin_and_a_flexion_clip() {
     let scene = load(&asset(), &LoadOptions::default()).unwrap();
-    let roles: Vec<(&str, Option<Role>)> =
-        scene.meshes.iter().map(|m| (m.name.as_str(), m.role)).collect();
+    let roles: Vec<(&str, Option<Role>)> = scene
+        .meshes
+        .iter()
+        .map(|m| (m.name.as_str(), m.role))
+        .collect();
     assert_eq!(
         roles,
         vec![
@@ -38,9 +41,18 @@ fn the_arm_has_bones_muscles_a_closed_skin_and_a_flexion_clip() {
             ("arm_skin", Some(Role::Skin)),
         ]
     );
-    assert!(scene.meshes.iter().all(|m| m.role_source == Some(RoleSource::Extras)));
+    assert!(
+        scene
+            .meshes
+            .iter()
+            .all(|m| m.role_source == Some(RoleSource::Extras))
+    );
     assert!(scene.capsules.is_empty(), "the arm has its own colliders");
-    let total: usize = scene.meshes.iter().map(|m| m.primitives[0].positions.len()).sum();
+    let total: usize = scene
+        .meshes
+        .iter()
+        .map(|m| m.primitives[0].positions.len())
+        .sum();
     assert!((1000..5000).contains(&total), "{total} vertices");
     for m in &scene.meshes {
         let p = &m.primitives[0];
@@ -48,8 +60,11 @@ fn the_arm_has_bones_muscles_a_closed_skin_and_a_flexion_clip() {
         assert!(mesh.topology().is_closed(), "{} is not closed", m.name);
     }
     assert_eq!(scene.skins.len(), 1);
-    let names: Vec<&str> =
-        scene.skins[0].joints.iter().map(|&j| scene.nodes[j as usize].name.as_str()).collect();
+    let names: Vec<&str> = scene.skins[0]
+        .joints
+        .iter()
+        .map(|&j| scene.nodes[j as usize].name.as_str())
+        .collect();
     assert_eq!(names, ["shoulder", "elbow", "wrist"]);
     assert_eq!(scene.clips.len(), 1);
     assert_eq!(scene.clips[0].name, "elbow_flexion");
@@ -62,7 +77,12 @@ fn at_full_flexion_the_forearm_is_rotated_and_the_biceps_bulges() {
     let rest = scene.pose(Some(0), 0.0);
     let flexed = scene.pose(Some(0), 1.0);
     let by_name = |p: &dermis::gltf::PosedScene, n: &str| {
-        p.primitives.iter().find(|x| x.name == n).unwrap().positions.clone()
+        p.primitives
+            .iter()
+            .find(|x| x.name == n)
+            .unwrap()
+            .positions
+            .clone()
     };
     // The forearm rod's wrist pole, rotated 120 degrees about z around the elbow.
     let tip = *by_name(&flexed, "forearm_bones.0").last().unwrap();
@@ -83,25 +103,56 @@ fn pose_cli_writes_one_object_per_primitive_in_node_order() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("arm.obj");
     let status = std::process::Command::new(env!("CARGO_BIN_EXE_dermis"))
-        .args(["pose", asset().to_str().unwrap(), "--clip", "elbow_flexion", "--time", "0.5"])
+        .args([
+            "pose",
+            asset().to_str().unwrap(),
+            "--clip",
+            "elbow_flexion",
+            "--time",
+            "0.5",
+        ])
         .arg("--out")
         .arg(&out)
         .output()
         .unwrap();
-    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
     let text = std::fs::read_to_string(&out).unwrap();
     let objects: Vec<&str> = text.lines().filter_map(|l| l.strip_prefix("o ")).collect();
-    assert_eq!(objects, ["humerus.0", "forearm_bones.0", "biceps.0", "triceps.0", "arm_skin.0"]);
+    assert_eq!(
+        objects,
+        [
+            "humerus.0",
+            "forearm_bones.0",
+            "biceps.0",
+            "triceps.0",
+            "arm_skin.0"
+        ]
+    );
     let scene = load(&asset(), &LoadOptions::default()).unwrap();
     let vertices = text.lines().filter(|l| l.starts_with("v ")).count();
-    let expected: usize = scene.meshes.iter().map(|m| m.primitives[0].positions.len()).sum();
+    let expected: usize = scene
+        .meshes
+        .iter()
+        .map(|m| m.primitives[0].positions.len())
+        .sum();
     assert_eq!(vertices, expected);
     // No temporary file is left behind.
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     // A missing clip is an error with a non-zero exit and no output file.
     let bad = dir.path().join("bad.obj");
     let status = std::process::Command::new(env!("CARGO_BIN_EXE_dermis"))
-        .args(["pose", asset().to_str().unwrap(), "--clip", "run", "--time", "0"])
+        .args([
+            "pose",
+            asset().to_str().unwrap(),
+            "--clip",
+            "run",
+            "--time",
+            "0",
+        ])
         .arg("--out")
         .arg(&bad)
         .output()

@@ -22,7 +22,7 @@ impl TestGltf {
     }
 
     fn push_view(&mut self, bytes: &[u8]) -> usize {
-        while self.bin.len() % 4 != 0 {
+        while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
         let views = self.json["bufferViews"].as_array_mut().unwrap();
@@ -33,7 +33,9 @@ impl TestGltf {
 
     fn push_accessor(&mut self, view: usize, component: u32, count: usize, ty: &str) -> usize {
         let accessors = self.json["accessors"].as_array_mut().unwrap();
-        accessors.push(json!({ "bufferView": view, "componentType": component, "count": count, "type": ty }));
+        accessors.push(
+            json!({ "bufferView": view, "componentType": component, "count": count, "type": ty }),
+        );
         accessors.len() - 1
     }
 
@@ -52,7 +54,9 @@ impl TestGltf {
         if ty == "VEC3" {
             // glTF requires bounds on POSITION accessors; harmless elsewhere.
             let bound = |f: fn(f32, f32) -> f32, init: f32| -> Vec<f32> {
-                (0..3).map(|k| data.iter().skip(k).step_by(3).copied().fold(init, f)).collect()
+                (0..3)
+                    .map(|k| data.iter().skip(k).step_by(3).copied().fold(init, f))
+                    .collect()
             };
             self.json["accessors"][a]["min"] = json!(bound(f32::min, f32::INFINITY));
             self.json["accessors"][a]["max"] = json!(bound(f32::max, f32::NEG_INFINITY));
@@ -100,7 +104,10 @@ impl TestGltf {
 
     /// `.gltf` text with the buffer embedded as a base64 data URI.
     pub fn to_embedded_gltf(&self) -> Vec<u8> {
-        let uri = format!("data:application/octet-stream;base64,{}", base64::encode(&self.bin));
+        let uri = format!(
+            "data:application/octet-stream;base64,{}",
+            base64::encode(&self.bin)
+        );
         self.with_buffer(Some(uri))
     }
 
@@ -112,11 +119,11 @@ impl TestGltf {
     /// Binary `.glb`.
     pub fn to_glb(&self) -> Vec<u8> {
         let mut json = self.with_buffer(None);
-        while json.len() % 4 != 0 {
+        while !json.len().is_multiple_of(4) {
             json.push(b' ');
         }
         let mut bin = self.bin.clone();
-        while bin.len() % 4 != 0 {
+        while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
         let total = 12 + 8 + json.len() + 8 + bin.len();

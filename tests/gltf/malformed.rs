@@ -10,7 +10,10 @@ use super::two_joint;
 
 fn rotation_clip(g: &mut TestGltf) -> serde_json::Value {
     let input = g.floats(&[0.0, 1.0], "SCALAR");
-    let q: Vec<f32> = [Quat::IDENTITY; 2].iter().flat_map(|q| q.to_array()).collect();
+    let q: Vec<f32> = [Quat::IDENTITY; 2]
+        .iter()
+        .flat_map(|q| q.to_array())
+        .collect();
     let output = g.floats(&q, "VEC4");
     json!([{ "name": "bend", "samplers": [{ "input": input, "output": output }],
              "channels": [{ "sampler": 0, "target": { "node": 1, "path": "rotation" } }] }])
@@ -42,7 +45,9 @@ fn accessor_past_its_buffer_names_the_accessor() {
     let mut g = two_joint(rotation_clip);
     g.json["accessors"][0]["count"] = json!(1000); // POSITION
     match load_err(&g.to_glb()) {
-        GltfError::AccessorOutOfRange { accessor, usage, .. } => {
+        GltfError::AccessorOutOfRange {
+            accessor, usage, ..
+        } => {
             assert_eq!(accessor, 0);
             assert!(usage.contains("POSITION"), "{usage}");
         }
@@ -50,7 +55,10 @@ fn accessor_past_its_buffer_names_the_accessor() {
     }
     let mut g = two_joint(rotation_clip);
     g.json["accessors"][0]["byteOffset"] = json!(4); // reads 4 bytes past its 36-byte view
-    assert!(matches!(load_err(&g.to_glb()), GltfError::AccessorOutOfRange { accessor: 0, .. }));
+    assert!(matches!(
+        load_err(&g.to_glb()),
+        GltfError::AccessorOutOfRange { accessor: 0, .. }
+    ));
 }
 
 #[test]
@@ -62,7 +70,14 @@ fn joint_index_beyond_the_skin_names_vertex_and_joint() {
     assert!(
         matches!(
             e,
-            GltfError::JointOutOfRange { mesh: 0, primitive: 0, vertex: 1, joint: 5, skin: 0, joint_count: 2 }
+            GltfError::JointOutOfRange {
+                mesh: 0,
+                primitive: 0,
+                vertex: 1,
+                joint: 5,
+                skin: 0,
+                joint_count: 2
+            }
         ),
         "{e:?}"
     );
@@ -72,10 +87,23 @@ fn joint_index_beyond_the_skin_names_vertex_and_joint() {
 #[test]
 fn all_zero_weights_name_the_vertex() {
     let mut g = two_joint(rotation_clip);
-    let w = g.floats(&[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], "VEC4");
+    let w = g.floats(
+        &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        "VEC4",
+    );
     g.json["meshes"][0]["primitives"][0]["attributes"]["WEIGHTS_0"] = json!(w);
     let e = load_err(&g.to_glb());
-    assert!(matches!(e, GltfError::ZeroWeights { mesh: 0, primitive: 0, vertex: 2 }), "{e:?}");
+    assert!(
+        matches!(
+            e,
+            GltfError::ZeroWeights {
+                mesh: 0,
+                primitive: 0,
+                vertex: 2
+            }
+        ),
+        "{e:?}"
+    );
 }
 
 #[test]
@@ -102,7 +130,10 @@ fn missing_external_buffer_names_buffer_and_file() {
 fn sampler_with_mismatched_counts_names_animation_and_channel() {
     let g = two_joint(|g| {
         let input = g.floats(&[0.0, 1.0, 2.0], "SCALAR");
-        let q: Vec<f32> = [Quat::IDENTITY; 2].iter().flat_map(|q| q.to_array()).collect();
+        let q: Vec<f32> = [Quat::IDENTITY; 2]
+            .iter()
+            .flat_map(|q| q.to_array())
+            .collect();
         let output = g.floats(&q, "VEC4");
         json!([{ "samplers": [{ "input": input, "output": output }],
                  "channels": [{ "sampler": 0, "target": { "node": 1, "path": "rotation" } }] }])
@@ -114,7 +145,11 @@ fn sampler_with_mismatched_counts_names_animation_and_channel() {
             GltfError::Sampler {
                 animation: 0,
                 channel: 0,
-                source: AnimationError::SamplerCountMismatch { inputs: 3, expected: 3, outputs: 2 }
+                source: AnimationError::SamplerCountMismatch {
+                    inputs: 3,
+                    expected: 3,
+                    outputs: 2
+                }
             }
         ),
         "{e:?}"
@@ -123,13 +158,19 @@ fn sampler_with_mismatched_counts_names_animation_and_channel() {
 
 #[test]
 fn missing_clip_by_name_or_index_lists_what_exists() {
-    let scene = Scene::from_slice(&two_joint(rotation_clip).to_glb(), None, &LoadOptions::default())
-        .unwrap();
+    let scene = Scene::from_slice(
+        &two_joint(rotation_clip).to_glb(),
+        None,
+        &LoadOptions::default(),
+    )
+    .unwrap();
     assert_eq!(scene.find_clip("bend").unwrap(), 0);
     assert_eq!(scene.find_clip("0").unwrap(), 0);
     for bad in ["walk", "1"] {
         match scene.find_clip(bad) {
-            Err(e @ GltfError::ClipNotFound { .. }) => assert!(e.to_string().contains("bend"), "{e}"),
+            Err(e @ GltfError::ClipNotFound { .. }) => {
+                assert!(e.to_string().contains("bend"), "{e}")
+            }
             other => panic!("{other:?}"),
         }
     }
@@ -139,12 +180,25 @@ fn missing_clip_by_name_or_index_lists_what_exists() {
 fn wrong_accessor_type_and_bad_index_are_reported() {
     let mut g = two_joint(rotation_clip);
     g.json["accessors"][0]["type"] = json!("VEC2");
-    assert!(matches!(load_err(&g.to_glb()), GltfError::AccessorType { accessor: 0, .. }));
+    assert!(matches!(
+        load_err(&g.to_glb()),
+        GltfError::AccessorType { accessor: 0, .. }
+    ));
     let mut g = two_joint(rotation_clip);
     let idx = g.indices(&[0, 1, 7]);
     g.json["meshes"][0]["primitives"][0]["indices"] = json!(idx);
     let e = load_err(&g.to_glb());
-    assert!(matches!(e, GltfError::Primitive { mesh: 0, primitive: 0, .. }), "{e:?}");
+    assert!(
+        matches!(
+            e,
+            GltfError::Primitive {
+                mesh: 0,
+                primitive: 0,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
     assert!(e.to_string().contains("index 2 is 7"), "{e}");
 }
 
@@ -163,11 +217,16 @@ fn corrupted_variants_of_the_arm_never_panic() {
     // the JSON (counts, offsets, indices), and whole header words.
     let mut state = 0x2545_f491_4f6c_dd1du64;
     let mut next = move || {
-        state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
         (state >> 33) as usize
     };
     // DERMIS_FUZZ_VARIANTS raises the count for a longer local run.
-    let n: usize = std::env::var("DERMIS_FUZZ_VARIANTS").ok().and_then(|v| v.parse().ok()).unwrap_or(400);
+    let n: usize = std::env::var("DERMIS_FUZZ_VARIANTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(400);
     for k in 0..n {
         let mut v = arm.clone();
         match k % 4 {

@@ -34,11 +34,22 @@ fn linear_rotation_matches_closed_form_and_ignores_the_skinned_node_transform() 
             g,
             "LINEAR",
             &[0.0, 1.0, 2.0],
-            &[Quat::IDENTITY, Quat::from_rotation_z(PI / 2.0), Quat::from_rotation_z(PI)],
+            &[
+                Quat::IDENTITY,
+                Quat::from_rotation_z(PI / 2.0),
+                Quat::from_rotation_z(PI),
+            ],
         )
     });
     for bytes in [g.to_glb(), g.to_embedded_gltf()] {
-        for (t, theta) in [(0.0, 0.0), (0.25, PI / 8.0), (0.5, PI / 4.0), (1.5, 0.75 * PI), (2.0, PI), (9.0, PI)] {
+        for (t, theta) in [
+            (0.0, 0.0),
+            (0.25, PI / 8.0),
+            (0.5, PI / 4.0),
+            (1.5, 0.75 * PI),
+            (2.0, PI),
+            (9.0, PI),
+        ] {
             let p = posed(&bytes, t);
             for (v, e) in p.iter().zip(expected(theta)) {
                 assert_near(*v, e, &format!("t = {t}"));
@@ -52,7 +63,12 @@ fn linear_rotation_takes_the_short_path_when_keys_have_opposite_signs() {
     // The second key is -q(90 deg): the same rotation, but a naive lerp/slerp would swing
     // through the long way. Halfway must be 45 degrees.
     let g = two_joint(|g| {
-        rotation_clip(g, "LINEAR", &[0.0, 1.0], &[Quat::IDENTITY, -Quat::from_rotation_z(PI / 2.0)])
+        rotation_clip(
+            g,
+            "LINEAR",
+            &[0.0, 1.0],
+            &[Quat::IDENTITY, -Quat::from_rotation_z(PI / 2.0)],
+        )
     });
     let p = posed(&g.to_glb(), 0.5);
     assert_near(p[0], expected(PI / 4.0)[0], "short path");
@@ -71,7 +87,11 @@ fn step_translation_holds_each_key_until_the_next() {
         // Joint 1 moved to (1, y, 0): vertex 0 follows rigidly, vertex 2 half-way.
         let p = posed(&bytes, t);
         assert_near(p[0], Vec3::new(2.0, y, 0.0), &format!("v0 t = {t}"));
-        assert_near(p[2], Vec3::new(1.0, 1.0 + 0.5 * y, 0.0), &format!("v2 t = {t}"));
+        assert_near(
+            p[2],
+            Vec3::new(1.0, 1.0 + 0.5 * y, 0.0),
+            &format!("v2 t = {t}"),
+        );
     }
 }
 
@@ -131,7 +151,10 @@ fn morph_targets_are_applied_before_skinning() {
     // degrees the displaced vertex (offset 1 + w from the joint) swings to (1, 1 + w, 0).
     let mut g = two_joint(|g| {
         let input = g.floats(&[0.0, 1.0], "SCALAR");
-        let q: Vec<f32> = [Quat::from_rotation_z(PI / 2.0); 2].iter().flat_map(|q| q.to_array()).collect();
+        let q: Vec<f32> = [Quat::from_rotation_z(PI / 2.0); 2]
+            .iter()
+            .flat_map(|q| q.to_array())
+            .collect();
         let rot = g.floats(&q, "VEC4");
         let w = g.floats(&[0.0, 1.0], "SCALAR");
         json!([{ "samplers": [
@@ -159,7 +182,10 @@ fn non_joint_parents_and_non_uniform_scale_compose_parents_first() {
     let mut g = TestGltf::new();
     let pos = g.floats(&[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0], "VEC3");
     let joints = g.joints(&[[1, 0, 0, 0], [1, 0, 0, 0], [0, 0, 0, 0]]);
-    let weights = g.floats(&[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], "VEC4");
+    let weights = g.floats(
+        &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        "VEC4",
+    );
     g.mesh(json!({ "name": "skinned", "primitives": [{ "attributes": { "POSITION": pos, "JOINTS_0": joints, "WEIGHTS_0": weights } }] }));
     g.mesh(json!({ "name": "rigid", "primitives": [{ "attributes": { "POSITION": pos } }] }));
     g.node(json!({ "name": "J1", "translation": [1.0, 0.0, 0.0] })); // 0
@@ -189,12 +215,23 @@ fn every_joints_weights_set_is_used_and_weights_are_renormalised() {
     // Two influence sets; v0 has weight 1 on joint 1 in set 1 only, v2 weights 1 + 1 across
     // sets (sum 2, renormalised to 1/2 each).
     let mut g = two_joint(|g| {
-        rotation_clip(g, "LINEAR", &[0.0, 1.0], &[Quat::from_rotation_z(PI / 2.0); 2])
+        rotation_clip(
+            g,
+            "LINEAR",
+            &[0.0, 1.0],
+            &[Quat::from_rotation_z(PI / 2.0); 2],
+        )
     });
     let j0 = g.joints(&[[0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]]);
-    let w0 = g.floats(&[0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], "VEC4");
+    let w0 = g.floats(
+        &[0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        "VEC4",
+    );
     let j1 = g.joints(&[[1, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 0]]);
-    let w1 = g.floats(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], "VEC4");
+    let w1 = g.floats(
+        &[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        "VEC4",
+    );
     let attrs = &mut g.json["meshes"][0]["primitives"][0]["attributes"];
     attrs["JOINTS_0"] = json!(j0);
     attrs["WEIGHTS_0"] = json!(w0);
@@ -219,10 +256,17 @@ fn roles_come_from_extras_then_names_then_overrides() {
         g.node(json!({ "mesh": m }));
     }
     let options = LoadOptions {
-        role_overrides: vec![("cloth".into(), Role::Skin), ("left_bone".into(), Role::Skin)],
+        role_overrides: vec![
+            ("cloth".into(), Role::Skin),
+            ("left_bone".into(), Role::Skin),
+        ],
     };
     let scene = Scene::from_slice(&g.to_glb(), None, &options).unwrap();
-    let roles: Vec<_> = scene.meshes.iter().map(|m| (m.role, m.role_source)).collect();
+    let roles: Vec<_> = scene
+        .meshes
+        .iter()
+        .map(|m| (m.role, m.role_source))
+        .collect();
     assert_eq!(
         roles,
         vec![
@@ -239,7 +283,10 @@ fn a_single_skinned_mesh_becomes_the_skin_with_capsules_along_its_bone() {
     let g = two_joint(|_| json!([]));
     let scene = Scene::from_slice(&g.to_glb(), None, &LoadOptions::default()).unwrap();
     assert_eq!(scene.meshes[0].role, Some(Role::Skin));
-    assert_eq!(scene.meshes[0].role_source, Some(RoleSource::SingleSkinnedMesh));
+    assert_eq!(
+        scene.meshes[0].role_source,
+        Some(RoleSource::SingleSkinnedMesh)
+    );
     // Joint 0 dominates v1 (0.5, 0, 0) and v2 (1, 1, 0) (tie -> first listed, joint 0):
     // bone from (0,0,0) to (1,0,0); median of distances {0, 1} is the upper one, 1.
     let c = scene.capsules.iter().find(|c| c.joint == 0).unwrap();

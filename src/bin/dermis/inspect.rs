@@ -99,7 +99,10 @@ pub fn run(args: InspectArgs) -> Result<(), Box<dyn Error>> {
             } else {
                 format!(
                     "edges {} boundary {} obtuse {} near-degenerate {} angles min {:.1} median {:.1} max {:.1} deg, area ratio {:.3e}",
-                    q["edges"], q["boundary_edges"], q["obtuse_triangles"], q["near_degenerate_triangles"],
+                    q["edges"],
+                    q["boundary_edges"],
+                    q["obtuse_triangles"],
+                    q["near_degenerate_triangles"],
                     q["min_angle_deg"].as_f64().unwrap_or(f64::NAN),
                     q["median_angle_deg"].as_f64().unwrap_or(f64::NAN),
                     q["max_angle_deg"].as_f64().unwrap_or(f64::NAN),

@@ -18,7 +18,8 @@ pub struct MakeArmArgs {
 /// Runs `dermis make-arm`.
 pub fn run(args: MakeArmArgs) -> Result<(), Box<dyn Error>> {
     let bytes = dermis::gltf::arm::build_arm_glb();
-    write_atomic(&args.out, &bytes).map_err(|e| format!("cannot write {}: {e}", args.out.display()))?;
+    write_atomic(&args.out, &bytes)
+        .map_err(|e| format!("cannot write {}: {e}", args.out.display()))?;
     println!("wrote {} ({} bytes)", args.out.display(), bytes.len());
     Ok(())
 }

@@ -34,14 +34,21 @@ pub fn parse_role(s: &str) -> Result<(String, Role), String> {
     let (name, role) = s
         .rsplit_once('=')
         .ok_or_else(|| format!("expected NAME=ROLE, got {s:?}"))?;
-    let role = Role::parse(role).ok_or_else(|| format!("unknown role {role:?} (skin, muscle, bone)"))?;
+    let role =
+        Role::parse(role).ok_or_else(|| format!("unknown role {role:?} (skin, muscle, bone)"))?;
     Ok((name.to_string(), role))
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same directory and a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
     let result = std::fs::File::create(&tmp).and_then(|mut f| {
         f.write_all(bytes)?;
@@ -79,7 +86,13 @@ pub fn run(args: PoseArgs) -> Result<(), Box<dyn Error>> {
     match ext.as_str() {
         "obj" => posed.write_obj(&mut bytes)?,
         "ply" => posed.write_ply(&mut bytes)?,
-        _ => return Err(format!("--out {}: extension must be .obj or .ply", args.out.display()).into()),
+        _ => {
+            return Err(format!(
+                "--out {}: extension must be .obj or .ply",
+                args.out.display()
+            )
+            .into());
+        }
     }
     write_atomic(&args.out, &bytes)
         .map_err(|e| format!("cannot write {}: {e}", args.out.display()))?;
@@ -115,7 +128,11 @@ pub fn run(args: PoseArgs) -> Result<(), Box<dyn Error>> {
         println!(
             "wrote {} objects ({} vertices) to {}",
             posed.primitives.len(),
-            posed.primitives.iter().map(|p| p.positions.len()).sum::<usize>(),
+            posed
+                .primitives
+                .iter()
+                .map(|p| p.positions.len())
+                .sum::<usize>(),
             args.out.display()
         );
     }
