@@ -1,6 +1,6 @@
 //! glTF 2.0 (`.gltf` and `.glb`) to a plain scene description: hierarchy, meshes, roles, skins, clips.
 //!
-//! [`load`] reads a file with the [`gltf`](::gltf) crate, checks every accessor it uses against
+//! [`load`] reads a file with the `gltf` crate, checks every accessor it uses against
 //! its buffer, and returns a [`Scene`]; [`Scene::pose`] evaluates it at a time the way a
 //! conforming glTF viewer does (morph targets, then skinning; a skinned mesh ignores its own
 //! node's transform).

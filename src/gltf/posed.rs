@@ -131,7 +131,7 @@ impl PosedScene {
         )?;
         let (mut v0, mut n0) = (1usize, 1usize);
         for p in &self.primitives {
-            writeln!(w, "o {}", p.name.replace(char::is_whitespace, "_"))?;
+            writeln!(w, "o {}", p.name.replace(['\n', '\r'], " "))?;
             for v in &p.positions {
                 writeln!(w, "v {} {} {}", v.x, v.y, v.z)?;
             }
@@ -205,5 +205,43 @@ impl PosedScene {
             v0 += p.positions.len();
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn two_triangles() -> PosedScene {
+        let prim = |node: u32, name: &str| PosedPrimitive {
+            node,
+            mesh: 0,
+            primitive: 0,
+            name: name.into(),
+            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+            normals: None,
+            triangles: vec![[0, 1, 2]],
+        };
+        PosedScene {
+            clip: None,
+            time_s: 0.0,
+            primitives: vec![prim(0, "a.0"), prim(1, "b.0")],
+        }
+    }
+
+    #[test]
+    fn obj_and_ply_offset_the_second_primitive_indices() {
+        let scene = two_triangles();
+        let mut obj = Vec::new();
+        scene.write_obj(&mut obj).unwrap();
+        let obj = String::from_utf8(obj).unwrap();
+        let faces: Vec<&str> = obj.lines().filter(|l| l.starts_with("f ")).collect();
+        assert_eq!(faces, ["f 1 2 3", "f 4 5 6"]);
+        assert_eq!(obj.lines().filter(|l| l.starts_with("o ")).count(), 2);
+        let mut ply = Vec::new();
+        scene.write_ply(&mut ply).unwrap();
+        let ply = String::from_utf8(ply).unwrap();
+        assert!(ply.contains("element vertex 6\n") && ply.contains("element face 2\n"));
+        assert!(ply.trim_end().ends_with("3 3 4 5"));
     }
 }
