@@ -1,6 +1,7 @@
 //! `dermis inspect`: meshes with roles and quality, skins, clips of a glTF model.
 
 use std::error::Error;
+use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use clap::Args;
@@ -74,6 +75,7 @@ pub fn run(args: InspectArgs) -> Result<(), Box<dyn Error>> {
             })
         })
         .collect();
+    let mut out = String::new();
     if args.json {
         let report = serde_json::json!({
             "model": args.model,
@@ -84,14 +86,14 @@ pub fn run(args: InspectArgs) -> Result<(), Box<dyn Error>> {
             "capsules": scene.capsules,
             "warnings": scene.warnings,
         });
-        println!("{}", serde_json::to_string_pretty(&report)?);
-        return Ok(());
+        writeln!(out, "{}", serde_json::to_string_pretty(&report)?)?;
+        return crate::pose::emit(&out);
     }
-    println!("{}: {} nodes", args.model.display(), scene.nodes.len());
-    println!("meshes:");
+    writeln!(out, "{}: {} nodes", args.model.display(), scene.nodes.len())?;
+    writeln!(out, "meshes:")?;
     for (mesh, j) in scene.meshes.iter().zip(&meshes) {
         let role = mesh.role.map_or("-", |r| r.as_str());
-        println!("  {:?} role {role}", mesh.name);
+        writeln!(out, "  {:?} role {role}", mesh.name)?;
         for p in j["primitives"].as_array().into_iter().flatten() {
             let q = &p["quality"];
             let quality = if let Some(e) = q.get("error") {
@@ -109,30 +111,32 @@ pub fn run(args: InspectArgs) -> Result<(), Box<dyn Error>> {
                     q["area_ratio"].as_f64().unwrap_or(f64::NAN),
                 )
             };
-            println!(
+            writeln!(
+                out,
                 "    primitive {}: {} vertices, {} triangles; {quality}",
                 p["primitive"], p["vertices"], p["triangles"]
-            );
+            )?;
         }
     }
-    println!("skins:");
+    writeln!(out, "skins:")?;
     for (s, skin) in scene.skins.iter().enumerate() {
-        println!("  {s}: {} joints", skin.joints.len());
+        writeln!(out, "  {s}: {} joints", skin.joints.len())?;
     }
-    println!("clips:");
+    writeln!(out, "clips:")?;
     for (c, clip) in scene.clips.iter().enumerate() {
-        println!(
+        writeln!(
+            out,
             "  {c}: {:?} {:.3} s, {} channels",
             clip.name,
             clip.duration(),
             clip.channels.len()
-        );
+        )?;
     }
     if !scene.capsules.is_empty() {
-        println!("capsules fitted along bones: {}", scene.capsules.len());
+        writeln!(out, "capsules fitted along bones: {}", scene.capsules.len())?;
     }
     for w in &scene.warnings {
-        println!("warning: {w}");
+        writeln!(out, "warning: {w}")?;
     }
-    Ok(())
+    crate::pose::emit(&out)
 }

@@ -20,6 +20,9 @@ pub fn run(args: MakeArmArgs) -> Result<(), Box<dyn Error>> {
     let bytes = dermis::gltf::arm::build_arm_glb();
     write_atomic(&args.out, &bytes)
         .map_err(|e| format!("cannot write {}: {e}", args.out.display()))?;
-    println!("wrote {} ({} bytes)", args.out.display(), bytes.len());
-    Ok(())
+    crate::pose::emit(&format!(
+        "wrote {} ({} bytes)\n",
+        args.out.display(),
+        bytes.len()
+    ))
 }

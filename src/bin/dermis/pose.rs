@@ -63,11 +63,31 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     }
 }
 
+/// Prints `text` on stdout; a closed pipe (`dermis ... | head`) is not an error.
+pub fn emit(text: &str) -> Result<(), Box<dyn Error>> {
+    match std::io::stdout().lock().write_all(text.as_bytes()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e.into()),
+        _ => Ok(()),
+    }
+}
+
 /// Runs `dermis pose`.
 pub fn run(args: PoseArgs) -> Result<(), Box<dyn Error>> {
     let options = LoadOptions {
         role_overrides: args.roles.clone(),
     };
+    let ext = args
+        .out
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if ext != "obj" && ext != "ply" {
+        return Err(format!(
+            "--out {}: extension must be .obj or .ply",
+            args.out.display()
+        )
+        .into());
+    }
     let scene: Scene = load(&args.model, &options)?;
     let clip = match &args.clip {
         Some(c) => Some(scene.find_clip(c)?),
@@ -77,11 +97,6 @@ pub fn run(args: PoseArgs) -> Result<(), Box<dyn Error>> {
         return Err(format!("--time must be finite, got {}", args.time).into());
     }
     let posed = scene.pose(clip, args.time);
-    let ext = args
-        .out
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
     let mut bytes = Vec::new();
     match ext.as_str() {
         "obj" => posed.write_obj(&mut bytes)?,
@@ -120,13 +135,13 @@ pub fn run(args: PoseArgs) -> Result<(), Box<dyn Error>> {
             "objects": objects,
             "warnings": scene.warnings,
         });
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        emit(&format!("{}\n", serde_json::to_string_pretty(&report)?))?;
     } else {
         for w in &scene.warnings {
             eprintln!("warning: {w}");
         }
-        println!(
-            "wrote {} objects ({} vertices) to {}",
+        emit(&format!(
+            "wrote {} objects ({} vertices) to {}\n",
             posed.primitives.len(),
             posed
                 .primitives
@@ -134,7 +149,7 @@ pub fn run(args: PoseArgs) -> Result<(), Box<dyn Error>> {
                 .map(|p| p.positions.len())
                 .sum::<usize>(),
             args.out.display()
-        );
+        ))?;
     }
     Ok(())
 }
