@@ -171,11 +171,15 @@ pub fn skin_normals(normals: &[Vec3], influences: &Influences, joints: &[Mat4]) 
 
 /// Adds `sum_k weights[k] * targets[k][v]` to every base vertex (glTF morph targets hold
 /// displacements). Missing weights count as zero; short targets leave the rest untouched.
-pub fn apply_morph_targets(base: &[Vec3], targets: &[Vec<Vec3>], weights: &[f32]) -> Vec<Vec3> {
+pub fn apply_morph_targets<T: AsRef<[Vec3]>>(
+    base: &[Vec3],
+    targets: &[T],
+    weights: &[f32],
+) -> Vec<Vec3> {
     let mut out = base.to_vec();
     for (target, &w) in targets.iter().zip(weights) {
         if w != 0.0 {
-            for (p, d) in out.iter_mut().zip(target) {
+            for (p, d) in out.iter_mut().zip(target.as_ref()) {
                 *p += w * *d;
             }
         }

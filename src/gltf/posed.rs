@@ -72,14 +72,17 @@ impl Scene {
                 .unwrap_or(&mesh.weights);
             let skin = node.skin.and_then(|s| joint_mats.get(s as usize));
             for (p, prim) in mesh.primitives.iter().enumerate() {
-                let targets: Vec<Vec<Vec3>> =
-                    prim.targets.iter().map(|t| t.positions.clone()).collect();
+                let targets: Vec<&[Vec3]> = prim
+                    .targets
+                    .iter()
+                    .map(|t| t.positions.as_slice())
+                    .collect();
                 let mut positions = apply_morph_targets(&prim.positions, &targets, weights);
                 let mut normals = prim.normals.as_ref().map(|base| {
-                    let nt: Vec<Vec<Vec3>> = prim
+                    let nt: Vec<&[Vec3]> = prim
                         .targets
                         .iter()
-                        .map(|t| t.normals.clone().unwrap_or_default())
+                        .map(|t| t.normals.as_deref().unwrap_or(&[]))
                         .collect();
                     apply_morph_targets(base, &nt, weights)
                 });

@@ -64,6 +64,43 @@ impl TestGltf {
         a
     }
 
+    /// Accessor over raw little-endian `bytes` of `component` type (glTF code), optionally
+    /// normalised.
+    pub fn raw(
+        &mut self,
+        bytes: &[u8],
+        component: u32,
+        count: usize,
+        ty: &str,
+        normalized: bool,
+    ) -> usize {
+        let view = self.push_view(bytes);
+        let a = self.push_accessor(view, component, count, ty);
+        if normalized {
+            self.json["accessors"][a]["normalized"] = json!(true);
+        }
+        a
+    }
+
+    /// Sparse VEC3 f32 accessor of `count` zeros (no buffer view) with `values` at `indices`.
+    pub fn sparse_vec3(&mut self, count: usize, indices: &[u16], values: &[f32]) -> usize {
+        let ib: Vec<u8> = indices.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let iv = self.push_view(&ib);
+        let vb: Vec<u8> = values.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let vv = self.push_view(&vb);
+        let accessors = self.json["accessors"].as_array_mut().unwrap();
+        accessors.push(json!({
+            "componentType": 5126, "count": count, "type": "VEC3",
+            "min": [-10.0, -10.0, -10.0], "max": [10.0, 10.0, 10.0],
+            "sparse": {
+                "count": indices.len(),
+                "indices": { "bufferView": iv, "componentType": 5123 },
+                "values": { "bufferView": vv },
+            },
+        }));
+        accessors.len() - 1
+    }
+
     /// u8 VEC4 accessor (joints).
     pub fn joints(&mut self, data: &[[u8; 4]]) -> usize {
         let bytes: Vec<u8> = data.iter().flatten().copied().collect();

@@ -164,13 +164,47 @@ fn morph_targets_are_applied_before_skinning() {
                     { "sampler": 0, "target": { "node": 1, "path": "rotation" } },
                     { "sampler": 1, "target": { "node": 2, "path": "weights" } }] }])
     });
-    let target = g.floats(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], "VEC3");
-    g.json["meshes"][0]["primitives"][0]["targets"] = json!([{ "POSITION": target }]);
+    let dense = g.floats(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], "VEC3");
+    // The same displacement as a sparse accessor without a buffer view.
+    let sparse = g.sparse_vec3(3, &[0], &[1.0, 0.0, 0.0]);
     g.json["meshes"][0]["weights"] = json!([0.0]);
+    for target in [dense, sparse] {
+        g.json["meshes"][0]["primitives"][0]["targets"] = json!([{ "POSITION": target }]);
+        let bytes = g.to_glb();
+        for w in [0.0f32, 0.25, 1.0] {
+            let p = posed(&bytes, w);
+            assert_near(p[0], Vec3::new(1.0, 1.0 + w, 0.0), &format!("w = {w}"));
+            assert_near(p[1], Vec3::new(0.5, 0.0, 0.0), "v1 has no displacement");
+        }
+    }
+}
+
+#[test]
+fn normalised_integer_weights_and_rotation_keys_are_decoded() {
+    // WEIGHTS_0 as normalised u8 (v2: 128/255 each, renormalised to 1/2) and rotation keys as
+    // normalised i16 (0, 0, 23170, 23170) / 32767: 90 degrees about z after normalisation.
+    let mut g = two_joint(|g| {
+        let input = g.floats(&[0.0, 1.0], "SCALAR");
+        let keys: [i16; 8] = [0, 0, 0, 32767, 0, 0, 23170, 23170];
+        let bytes: Vec<u8> = keys.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let output = g.raw(&bytes, 5122, 2, "VEC4", true);
+        json!([{ "samplers": [{ "input": input, "output": output }],
+                 "channels": [{ "sampler": 0, "target": { "node": 1, "path": "rotation" } }] }])
+    });
+    let w = g.raw(
+        &[255, 0, 0, 0, 255, 0, 0, 0, 128, 128, 0, 0],
+        5121,
+        3,
+        "VEC4",
+        true,
+    );
+    g.json["meshes"][0]["primitives"][0]["attributes"]["WEIGHTS_0"] = json!(w);
     let bytes = g.to_glb();
-    for w in [0.0f32, 0.25, 1.0] {
-        let p = posed(&bytes, w);
-        assert_near(p[0], Vec3::new(1.0, 1.0 + w, 0.0), &format!("w = {w}"));
+    for (t, theta) in [(0.5, PI / 4.0), (1.0, PI / 2.0)] {
+        let p = posed(&bytes, t);
+        for (v, e) in p.iter().zip(expected(theta)) {
+            assert_near(*v, e, &format!("t = {t}"));
+        }
     }
 }
 
