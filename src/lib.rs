@@ -15,6 +15,8 @@
 //! | [`fem`] | constant-strain membrane FEM, the reference the springs are measured against |
 //! | [`ecs`] | skin components, the frame's system sets and systems, [`ecs::DermisPlugin`] |
 //! | [`anatomy`] | muscles and bones: velocity Verlet, pressure cells, rigid bones, lattices |
+//! | [`animation`] | skeletons, clips (step/linear/cubic-spline), linear blend skinning |
+//! | [`gltf`](mod@gltf) | glTF/GLB loading into a plain scene, roles, posing, the bundled arm |
 //! | [`export`] | frame sinks: animated glTF, OBJ/PLY sequences, USD; strain colours |
 //! | [`io`] | mesh and load files, atomic writes |
 //! | [`paper`] | the source papers' experiments, reproducible |
@@ -25,10 +27,12 @@
 #![doc = include_str!("guide.md")]
 
 pub mod anatomy;
+pub mod animation;
 pub mod bench;
 pub mod ecs;
 pub mod export;
 pub mod fem;
+pub mod gltf;
 pub mod io;
 pub mod mesh;
 pub mod paper;

@@ -4,3 +4,4 @@ mod anatomy;
 mod core;
 mod ecs;
 mod export;
+mod gltf;

@@ -2,7 +2,10 @@
 
 mod bench;
 mod equilibrium;
+mod inspect;
+mod make_arm;
 mod paper;
+mod pose;
 
 use std::process::ExitCode;
 
@@ -18,6 +21,10 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Print a glTF model's meshes with roles and quality, skins and clips.
+    Inspect(inspect::InspectArgs),
+    /// Write every mesh primitive of a glTF model posed at a time (OBJ or PLY, world space).
+    Pose(pose::PoseArgs),
     /// Equilibrium of a spring mesh (or the FEM membrane) under point forces and pins.
     Equilibrium(equilibrium::Args),
     /// Standard performance workloads with an in-run machine calibration.
@@ -25,6 +32,8 @@ enum Command {
     /// Reproduce the source papers' experiments.
     #[command(subcommand)]
     Paper(paper::Experiment),
+    /// Regenerate the bundled arm model (assets/arm.glb) byte-for-byte.
+    MakeArm(make_arm::MakeArmArgs),
 }
 
 /// A command's failure: printed as `error: ...`, exit code 1.
@@ -32,10 +41,13 @@ type CliResult = Result<(), Box<dyn std::error::Error>>;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let result = match cli.command {
-        Command::Bench(args) => bench::run(args),
+    let result: CliResult = match cli.command {
+        Command::Inspect(args) => inspect::run(args),
+        Command::Pose(args) => pose::run(args),
         Command::Equilibrium(args) => equilibrium::run(args),
+        Command::Bench(args) => bench::run(args),
         Command::Paper(experiment) => paper::run(experiment),
+        Command::MakeArm(args) => make_arm::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
