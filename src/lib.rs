@@ -9,12 +9,14 @@
 //!
 //! | module | what it holds |
 //! |---|---|
+//! | [`collision`] | skin sliding over deforming muscle meshes and bone capsules |
 //! | [`mesh`] | validated triangle and tetrahedral topology, quality report |
 //! | [`stiffness`] | per-edge spring stiffness (Van Gelder Eq. 27, 29, 30, baselines) |
 //! | [`solver`] | spring forces and energy, quasi-static relaxation |
 //! | [`fem`] | constant-strain membrane FEM, the reference the springs are measured against |
 //! | [`paper`] | the source paper's experiments, reproducible |
 
+pub mod collision;
 pub mod fem;
 pub mod io;
 pub mod mesh;
