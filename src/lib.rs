@@ -9,7 +9,6 @@
 //!
 //! | module | what it holds |
 //! |---|---|
-//! | [`collision`] | skin sliding over deforming muscle meshes and bone capsules |
 //! | [`mesh`] | validated triangle and tetrahedral topology, quality report |
 //! | [`stiffness`] | per-edge spring stiffness (Van Gelder Eq. 27, 29, 30, baselines) |
 //! | [`solver`] | spring forces and energy, quasi-static relaxation |

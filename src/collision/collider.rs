@@ -102,15 +102,16 @@ impl ColliderMesh {
     /// triangles wind the same way, and inside-out meshes (negative signed volume). An
     /// inside-out mesh is rejected rather than flipped: it usually means an exporter used the
     /// opposite convention, which the caller should know about.
-    pub fn from_mesh(vertices: Vec<Vec3>, triangles: Vec<[u32; 3]>) -> Result<Self, CollisionError> {
+    pub fn from_mesh(
+        vertices: Vec<Vec3>,
+        triangles: Vec<[u32; 3]>,
+    ) -> Result<Self, CollisionError> {
         let checked = TriMesh::new(vertices, triangles)?;
         let topo = checked.topology();
         let tris = topo.triangles();
         let pos = checked.positions();
         let mut across = vec![[NONE; 3]; tris.len()];
-        for (e, (&[a, b], &[t0, t1])) in topo.edges().iter().zip(topo.edge_triangles()).enumerate()
-        {
-            let _ = e;
+        for (&[a, b], &[t0, t1]) in topo.edges().iter().zip(topo.edge_triangles()) {
             if t1 == crate::mesh::NO_TRIANGLE {
                 return Err(CollisionError::Hole {
                     a,
@@ -184,8 +185,18 @@ impl ColliderMesh {
                 detail: format!("a {a}, b {b}, radius {radius_m}"),
             });
         }
-        let aabb = Aabb::new(a.min(b) - Vec3::splat(radius_m), a.max(b) + Vec3::splat(radius_m));
-        Ok(Self::with_shape(Shape::Capsule { a, b, radius: radius_m }, aabb))
+        let aabb = Aabb::new(
+            a.min(b) - Vec3::splat(radius_m),
+            a.max(b) + Vec3::splat(radius_m),
+        );
+        Ok(Self::with_shape(
+            Shape::Capsule {
+                a,
+                b,
+                radius: radius_m,
+            },
+            aabb,
+        ))
     }
 
     /// A ball of `radius_m` centred on its rest frame's origin.
@@ -197,7 +208,10 @@ impl ColliderMesh {
             });
         }
         let r = Vec3::splat(radius_m);
-        Ok(Self::with_shape(Shape::Ball { radius: radius_m }, Aabb::new(-r, r)))
+        Ok(Self::with_shape(
+            Shape::Ball { radius: radius_m },
+            Aabb::new(-r, r),
+        ))
     }
 
     fn with_shape(shape: Shape, local_aabb: Aabb) -> Self {
@@ -405,7 +419,8 @@ impl MeshShape {
 
     fn vertex_normal(&self, vertex: u32) -> Vec3 {
         let v = self.mesh.vertices();
-        let range = self.vt_offsets[vertex as usize] as usize..self.vt_offsets[vertex as usize + 1] as usize;
+        let range = self.vt_offsets[vertex as usize] as usize
+            ..self.vt_offsets[vertex as usize + 1] as usize;
         let mut sum = Vec3::ZERO;
         for &t in &self.vt[range] {
             let idx = self.mesh.indices()[t as usize];
@@ -462,7 +477,13 @@ impl MeshShape {
 }
 
 /// Signed distance and push direction from the feature normal.
-fn oriented(p: Vec3, point: Vec3, feature_normal: Vec3, part: u32, coords: Vec3) -> SurfaceProjection {
+fn oriented(
+    p: Vec3,
+    point: Vec3,
+    feature_normal: Vec3,
+    part: u32,
+    coords: Vec3,
+) -> SurfaceProjection {
     let d = p - point;
     let dist = d.length();
     let inside = d.dot(feature_normal) < 0.0;

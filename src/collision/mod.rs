@@ -596,6 +596,23 @@ impl SkinCollision {
         Ok(&self.diagnostics)
     }
 
+    /// One contact pass over `x` (caller's order) against the colliders as they are, without the
+    /// swept test: every vertex closer than its thickness is pushed out (after skinning, say).
+    /// Returns `true` if any vertex moved.
+    pub fn contact_pass(&mut self, x: &mut [Vec3]) -> Result<bool, CollisionError> {
+        if x.len() != self.vertex_count() {
+            return Err(CollisionError::Length {
+                what: "positions",
+                given: x.len(),
+                expected: self.vertex_count(),
+            });
+        }
+        let (counters, unresolved) = self.pass(x, false);
+        let moved = counters.moved > 0;
+        self.record(counters, unresolved);
+        Ok(moved)
+    }
+
     fn record(&mut self, c: Counters, unresolved: Vec<u32>) {
         let d = &mut self.diagnostics;
         d.unresolved = unresolved;

@@ -14,7 +14,6 @@ use glam::Vec3;
 /// assert_eq!(t.len(), 2 * 12 * 7);
 /// assert!(ColliderMesh::from_mesh(v, t).is_ok());
 /// ```
-#[expect(clippy::type_complexity, reason = "a plain vertex and index buffer pair")]
 pub fn ellipsoid(
     centre: Vec3,
     radii_m: Vec3,
@@ -29,7 +28,11 @@ pub fn ellipsoid(
         let theta = std::f32::consts::PI * j as f32 / n_lat as f32;
         for i in 0..n_lon {
             let phi = std::f32::consts::TAU * i as f32 / n_lon as f32;
-            let unit = Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+            let unit = Vec3::new(
+                theta.sin() * phi.cos(),
+                theta.sin() * phi.sin(),
+                theta.cos(),
+            );
             v.push(centre + unit * radii_m);
         }
     }
@@ -42,7 +45,12 @@ pub fn ellipsoid(
     }
     for j in 1..n_lat - 1 {
         for i in 0..n_lon {
-            let (a0, a1, b0, b1) = (ring(j, i), ring(j, i + 1), ring(j + 1, i), ring(j + 1, i + 1));
+            let (a0, a1, b0, b1) = (
+                ring(j, i),
+                ring(j, i + 1),
+                ring(j + 1, i),
+                ring(j + 1, i + 1),
+            );
             t.push([a0, b0, b1]);
             t.push([a0, b1, a1]);
         }

@@ -100,8 +100,13 @@ impl Lcg {
 }
 
 fn blob(n_lat: u32, n_lon: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-    shapes::ellipsoid(Vec3::new(0.01, -0.02, 0.03), Vec3::new(0.3, 0.2, 0.25), n_lat, n_lon)
-        .unwrap()
+    shapes::ellipsoid(
+        Vec3::new(0.01, -0.02, 0.03),
+        Vec3::new(0.3, 0.2, 0.25),
+        n_lat,
+        n_lon,
+    )
+    .unwrap()
 }
 
 /// A smooth non-convex deformation of the blob: a travelling bulge and a dent.
@@ -109,7 +114,11 @@ fn deform(v: &[Vec3], phase: f32) -> Vec<Vec3> {
     v.iter()
         .map(|p| {
             let bulge = 1.0 + 0.15 * (4.0 * p.x + phase).sin() * (3.0 * p.y).cos();
-            Vec3::new(p.x, p.y * bulge, p.z * (1.0 - 0.3 * (-(p.x * p.x) * 40.0).exp()))
+            Vec3::new(
+                p.x,
+                p.y * bulge,
+                p.z * (1.0 - 0.3 * (-(p.x * p.x) * 40.0).exp()),
+            )
         })
         .collect()
 }
@@ -141,7 +150,10 @@ fn holes_flips_and_inside_out_meshes_are_rejected_with_the_culprit_named() {
     };
     // The ellipsoid's volume, 4/3 π abc, up to the polyhedral approximation.
     let exact = 4.0 / 3.0 * std::f64::consts::PI * 0.3 * 0.2 * 0.25;
-    assert!(volume_m3 < -0.5 * exact && volume_m3 > -exact, "{volume_m3}");
+    assert!(
+        volume_m3 < -0.5 * exact && volume_m3 > -exact,
+        "{volume_m3}"
+    );
     assert!(err.to_string().contains("swap"));
 
     assert!(ColliderMesh::capsule(Vec3::ZERO, Vec3::X, -1.0).is_err());
@@ -171,7 +183,10 @@ fn signed_distance_matches_parry_oriented_mesh_before_and_after_deformation() {
             let ours = collider.project_point(p);
             let theirs = oriented.project_point(&Pose::IDENTITY, p, false);
             let dist = theirs.point.distance(p);
-            assert!((ours.signed_distance.abs() - dist).abs() < 1e-6, "{p} {phase:?}");
+            assert!(
+                (ours.signed_distance.abs() - dist).abs() < 1e-6,
+                "{p} {phase:?}"
+            );
             // Near-ties may pick another closest point at the same distance.
             assert!(ours.point.distance(theirs.point) < 1e-4, "{p} {phase:?}");
             if dist > 1e-5 {
@@ -179,7 +194,10 @@ fn signed_distance_matches_parry_oriented_mesh_before_and_after_deformation() {
             }
             inside += theirs.is_inside as u32;
         }
-        assert!(inside > 300, "the sample must probe the inside too ({inside})");
+        assert!(
+            inside > 300,
+            "the sample must probe the inside too ({inside})"
+        );
     }
 }
 
@@ -210,7 +228,12 @@ fn cached_queries_equal_naive_project_point() {
         }
         // Stale and even wrong hints must not change the answer.
         let wrong = collider.project_local(points[0], (frame * 97) as u32 % t.len() as u32);
-        assert!(wrong.point.distance(collider.project_point(points[0]).point) < 1e-6);
+        assert!(
+            wrong
+                .point
+                .distance(collider.project_point(points[0]).point)
+                < 1e-6
+        );
     }
 
     // Whole passes: with the cache and bounds, the same positions as with no cache at all.
@@ -229,7 +252,10 @@ fn cached_queries_equal_naive_project_point() {
     for frame in 0..5 {
         let d = deform(&v, 0.05 * frame as f32);
         for s in [&mut cached, &mut naive] {
-            s.collider_mut(ColliderId(0)).unwrap().set_vertices(&d).unwrap();
+            s.collider_mut(ColliderId(0))
+                .unwrap()
+                .set_vertices(&d)
+                .unwrap();
         }
         cached.advance_frame(&mut xa).unwrap();
         naive.clear_cache();
@@ -253,7 +279,10 @@ fn cached_queries_equal_naive_project_point() {
         assert!(max < 1e-6, "frame {frame}: cached pass differs by {max}");
     }
     let d = cached.diagnostics();
-    assert!(d.skipped_bound + d.skipped_aabb > 0 && d.cache_hits > 0, "{d:?}");
+    assert!(
+        d.skipped_bound + d.skipped_aabb > 0 && d.cache_hits > 0,
+        "{d:?}"
+    );
 }
 
 #[test]
@@ -386,12 +415,21 @@ fn frictionless_sliding_ball_carries_no_vertex_and_friction_drags_the_sheet() {
         .zip(&fresh)
         .map(|(a, b)| a.distance(*b))
         .fold(0.0f32, f32::max);
-    assert!(max < 0.05 * shift, "frictionless result differs from a fresh drape by {max}");
+    assert!(
+        max < 0.05 * shift,
+        "frictionless result differs from a fresh drape by {max}"
+    );
     let moved_free = carried(&free, &initial);
     let (stuck, initial_stuck, _) = slide(1.0, shift, 5);
     let moved_stuck = carried(&stuck, &initial_stuck);
-    assert!(moved_free.abs() < 0.2 * shift, "frictionless carried {moved_free}");
-    assert!(moved_stuck > 0.5 * shift, "sticking carried only {moved_stuck}");
+    assert!(
+        moved_free.abs() < 0.2 * shift,
+        "frictionless carried {moved_free}"
+    );
+    assert!(
+        moved_stuck > 0.5 * shift,
+        "sticking carried only {moved_stuck}"
+    );
 }
 
 /// Winding number of a closed polygon around the line through `c` along `axis`.
@@ -484,7 +522,10 @@ fn without_substeps_the_fast_bone_tunnels() {
 fn crease_between_two_capsules_leaves_no_vertex_inside() {
     let (r, h) = (0.03, 0.01);
     // Two overlapping parallel bones: a V-shaped crease along y between them.
-    let (a0, a1) = (Vec3::new(-0.025, -0.3, -0.04), Vec3::new(-0.025, 0.3, -0.04));
+    let (a0, a1) = (
+        Vec3::new(-0.025, -0.3, -0.04),
+        Vec3::new(-0.025, 0.3, -0.04),
+    );
     let (b0, b1) = (Vec3::new(0.025, -0.3, -0.04), Vec3::new(0.025, 0.3, -0.04));
     let mesh = sheet(25, 0.4, 0.0);
     let system = springs(&mesh);
@@ -530,7 +571,13 @@ fn crease_between_two_capsules_leaves_no_vertex_inside() {
     // both distances are the thickness: x = 0, z = −0.04 + √((r + h)² − 0.025²).
     let z_star = -0.04 + ((r + h) * (r + h) - 0.025f32 * 0.025).sqrt();
     let mut notch: Vec<Vec3> = (0..40)
-        .map(|k| Vec3::new(0.004 * ((k % 7) as f32 - 3.0) / 3.0, -0.2 + 0.01 * k as f32, -0.035 + 0.0006 * k as f32))
+        .map(|k| {
+            Vec3::new(
+                0.004 * ((k % 7) as f32 - 3.0) / 3.0,
+                -0.2 + 0.01 * k as f32,
+                -0.035 + 0.0006 * k as f32,
+            )
+        })
         .collect();
     let mut contact = SkinCollision::new(notch.len(), config).unwrap();
     contact.add_collider(ColliderMesh::capsule(a0, a1, r).unwrap());
@@ -624,4 +671,3 @@ fn per_vertex_thickness_and_results_independent_of_thread_count() {
             .contains("vertex 1")
     );
 }
-
