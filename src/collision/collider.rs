@@ -3,8 +3,7 @@
 use glam::Vec3;
 use parry3d::bounding_volume::Aabb;
 use parry3d::math::Pose;
-use parry3d::partitioning::BvhNode;
-use parry3d::query::{PointQuery, PointQueryWithLocation, Ray, RayCast};
+use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{
     Ball, Capsule, CompositeShapeRef, TriMesh as ParryMesh, TrianglePointLocation,
 };
@@ -14,9 +13,6 @@ use crate::mesh::TriMesh;
 
 /// Marks "no triangle" in neighbour tables and caches.
 pub(crate) const NONE: u32 = u32::MAX;
-
-/// Largest 1-ring (triangles sharing a vertex with a triangle) the certificate handles.
-const MAX_RING: usize = 48;
 
 /// The closest point of a collider's surface to a query point, in the collider's local frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -377,26 +373,6 @@ impl ColliderMesh {
         }
     }
 
-    /// [`project_local`](Self::project_local) with a certificate for meshes: `second` is a lower
-    /// bound of the distance from `p` to every triangle outside the 1-ring of `center` (the
-    /// triangles sharing a vertex with it). When the best triangle of that ring is closer than
-    /// the bound, it is the exact answer and the BVH is not asked. Otherwise a full (hinted)
-    /// query runs and a new bound is computed for the new ring, capped at `cap` above the
-    /// distance found. Returns the projection, the ring's centre (the next call's `center`), the
-    /// bound at `p` for that ring, and whether the certificate held.
-    pub(crate) fn project_local_certified(
-        &self,
-        p: Vec3,
-        center: u32,
-        second: f32,
-        cap: f32,
-    ) -> (SurfaceProjection, u32, f32, bool) {
-        match &self.shape {
-            Shape::Mesh(m) => m.project_certified(p, center, second, cap),
-            _ => (self.project_local(p, center), 0, 0.0, false),
-        }
-    }
-
     /// The current rest-frame position of a surface point given by `part` and `coords` (see
     /// [`SurfaceProjection`]).
     pub(crate) fn local_surface_point(&self, part: u32, coords: Vec3) -> Vec3 {
@@ -458,111 +434,11 @@ impl MeshShape {
         sum.normalize_or_zero()
     }
 
-    /// Triangles sharing a vertex with `t` (including `t`), deduplicated; `None` past
-    /// [`MAX_RING`].
-    fn ring(&self, t: u32, out: &mut [u32; MAX_RING]) -> Option<usize> {
-        let mut len = 0;
-        for &v in &self.mesh.indices()[t as usize] {
-            let range =
-                self.vt_offsets[v as usize] as usize..self.vt_offsets[v as usize + 1] as usize;
-            for &u in &self.vt[range] {
-                if !out[..len].contains(&u) {
-                    if len == MAX_RING {
-                        return None;
-                    }
-                    out[len] = u;
-                    len += 1;
-                }
-            }
-        }
-        Some(len)
-    }
-
-    fn project_certified(
-        &self,
-        p: Vec3,
-        center: u32,
-        second: f32,
-        cap: f32,
-    ) -> (SurfaceProjection, u32, f32, bool) {
-        let mut ring = [0u32; MAX_RING];
-        let n_tris = self.mesh.indices().len();
-        if center != NONE
-            && (center as usize) < n_tris
-            && second > 0.0
-            && let Some(len) = self.ring(center, &mut ring)
-        {
-            let mut best: Option<(f32, u32, Vec3, TrianglePointLocation)> = None;
-            for &t in &ring[..len] {
-                let (proj, location) = self
-                    .mesh
-                    .triangle(t)
-                    .project_local_point_and_get_location(p, false);
-                let d = (proj.point - p).length();
-                if best.is_none_or(|b| d < b.0) {
-                    best = Some((d, t, proj.point, location));
-                }
-            }
-            if let Some((d, t, point, location)) = best
-                && d < second
-            {
-                // The ring's centre stays the cache key: the bound is about its ring.
-                return (self.finish(p, t, point, location), center, second, true);
-            }
-        }
-        let found = self.project(p, center);
-        let t = found.part;
-        let Some(len) = self.ring(t, &mut ring) else {
-            return (found, t, 0.0, false);
-        };
-        let d = found.signed_distance.abs();
-        let limit = d + cap;
-        let ring = &ring[..len];
-        let second = self
-            .mesh
-            .bvh()
-            .find_best(
-                limit,
-                |node: &BvhNode, _| node.aabb().distance_to_local_point(p, true),
-                |leaf, _| {
-                    if ring.contains(&leaf) {
-                        None
-                    } else {
-                        let proj = self.mesh.triangle(leaf).project_local_point(p, false);
-                        Some((proj.point - p).length())
-                    }
-                },
-            )
-            .map_or(limit, |(_, d2)| d2);
-        (found, t, second, false)
-    }
-
-    fn finish(
-        &self,
-        p: Vec3,
-        t: u32,
-        point: Vec3,
-        location: TrianglePointLocation,
-    ) -> SurfaceProjection {
-        let idx = self.mesh.indices()[t as usize];
-        let feature_normal = match location {
-            TrianglePointLocation::OnEdge(i, _) => {
-                let other = self.across[t as usize][i as usize];
-                (self.face_normal(t) + self.face_normal(other)).normalize_or_zero()
-            }
-            TrianglePointLocation::OnVertex(i) => self.vertex_normal(idx[i as usize]),
-            _ => self.face_normal(t),
-        };
-        let coords = location
-            .barycentric_coordinates()
-            .map_or(Vec3::splat(1.0 / 3.0), Vec3::from_array);
-        oriented(p, point, feature_normal, t, coords)
-    }
-
     fn project(&self, p: Vec3, hint: u32) -> SurfaceProjection {
         let shape = CompositeShapeRef(&self.mesh);
         let mut bound = f32::MAX;
         if hint != NONE && (hint as usize) < self.mesh.indices().len() {
+            use parry3d::query::PointQueryWithLocation;
             let (proj, _) = self
                 .mesh
                 .triangle(hint)
@@ -584,7 +460,19 @@ impl MeshShape {
                 coords: Vec3::new(1.0, 0.0, 0.0),
             };
         };
-        self.finish(p, t, proj.point, location)
+        let idx = self.mesh.indices()[t as usize];
+        let feature_normal = match location {
+            TrianglePointLocation::OnEdge(i, _) => {
+                let other = self.across[t as usize][i as usize];
+                (self.face_normal(t) + self.face_normal(other)).normalize_or_zero()
+            }
+            TrianglePointLocation::OnVertex(i) => self.vertex_normal(idx[i as usize]),
+            _ => self.face_normal(t),
+        };
+        let coords = location
+            .barycentric_coordinates()
+            .map_or(Vec3::splat(1.0 / 3.0), Vec3::from_array);
+        oriented(p, proj.point, feature_normal, t, coords)
     }
 }
 

@@ -210,12 +210,9 @@ pub struct ContactDiagnostics {
     pub passes: u64,
     /// Vertices moved, summed over passes.
     pub moved: u64,
-    /// Closest-point queries that searched the BVH, summed over passes.
+    /// Exact closest-point queries, summed over passes.
     pub exact_queries: u64,
-    /// Closest-point queries answered from the cached triangle's 1-ring alone, its distance
-    /// bound proving no other triangle can be closer (results identical to a BVH search).
-    pub certified: u64,
-    /// BVH queries whose closest triangle was the cached one.
+    /// Exact queries whose closest triangle was the cached one.
     pub cache_hits: u64,
     /// Vertex–collider pairs skipped because the vertex lies outside the collider's bounding box
     /// inflated by the thickness.
@@ -270,18 +267,16 @@ impl VertexState {
     };
 }
 
-/// Per vertex and collider: the closest-feature cache and two distance bounds (32 bytes).
+/// Per vertex and collider: the closest-feature cache and a distance bound (32 bytes).
 #[derive(Debug, Clone, Copy)]
 struct Slot {
-    /// Centre triangle of the cached 1-ring ([`NONE`]: none).
+    /// Triangle found last time ([`NONE`]: none).
     part: u32,
     /// Lower bound of the signed distance at `p_ref` when the collider had travelled
     /// `travel_at`, m.
     clearance: f32,
     travel_at: f64,
     p_ref: Vec3,
-    /// Lower bound of the distance from `p_ref` to every triangle outside `part`'s 1-ring, m.
-    second: f32,
 }
 
 impl Slot {
@@ -290,36 +285,21 @@ impl Slot {
         clearance: 0.0,
         travel_at: 0.0,
         p_ref: Vec3::ZERO,
-        second: 0.0,
     };
 
-    /// Lower bound at `p` of a distance bounded by `value` at `p_ref`: the surface moved at most
-    /// `travel − travel_at`, the point at most `|p − p_ref|` (distances are 1-Lipschitz).
-    #[inline]
-    fn moved_bound(&self, value: f32, p: Vec3, travel: f64) -> f64 {
-        value as f64 - (travel - self.travel_at) - p.distance(self.p_ref) as f64
-    }
-
+    /// Lower bound of the signed distance at `p`: the surface moved at most `travel −
+    /// travel_at`, the point at most `|p − p_ref|`.
     #[inline]
     fn lower_bound(&self, p: Vec3, travel: f64) -> f64 {
-        self.moved_bound(self.clearance, p, travel)
+        self.clearance as f64 - (travel - self.travel_at) - p.distance(self.p_ref) as f64
     }
 
-    /// Moves the reference to `p` with a new clearance, carrying the ring bound along.
     #[inline]
     fn set(&mut self, clearance: f32, p: Vec3, travel: f64) {
-        self.second = round_down(self.moved_bound(self.second, p, travel));
-        self.clearance = round_down(clearance as f64);
+        self.clearance = clearance;
         self.p_ref = p;
         self.travel_at = travel;
     }
-}
-
-/// `v` as an `f32` no larger than `v` (bounds must stay bounds).
-#[inline]
-fn round_down(v: f64) -> f32 {
-    let f = v as f32;
-    if f as f64 > v { f.next_down() } else { f }
 }
 
 #[derive(Debug, Clone, Copy, Default)]
@@ -327,7 +307,6 @@ struct Counters {
     contacts: u64,
     moved: u64,
     exact_queries: u64,
-    certified: u64,
     cache_hits: u64,
     skipped_aabb: u64,
     skipped_bound: u64,
@@ -339,7 +318,6 @@ impl Counters {
         self.contacts += o.contacts;
         self.moved += o.moved;
         self.exact_queries += o.exact_queries;
-        self.certified += o.certified;
         self.cache_hits += o.cache_hits;
         self.skipped_aabb += o.skipped_aabb;
         self.skipped_bound += o.skipped_bound;
@@ -642,7 +620,6 @@ impl SkinCollision {
         d.passes += 1;
         d.moved += c.moved;
         d.exact_queries += c.exact_queries;
-        d.certified += c.certified;
         d.cache_hits += c.cache_hits;
         d.skipped_aabb += c.skipped_aabb;
         d.skipped_bound += c.skipped_bound;
@@ -787,17 +764,10 @@ impl Ctx<'_> {
                     continue;
                 }
                 let hint = slot.part;
-                let second = round_down(slot.moved_bound(slot.second, *p, travel));
-                let (proj, key, second, certified) =
-                    col.project_local_certified(local, hint, second, band);
-                counters.exact_queries += (!certified) as u64;
-                counters.certified += certified as u64;
-                counters.cache_hits += (!certified && proj.part == hint) as u64;
-                // The new reference is `p`: rebase both bounds on it.
-                slot.part = key;
-                slot.second = second;
-                slot.p_ref = *p;
-                slot.travel_at = travel;
+                let proj = col.project_local(local, hint);
+                counters.exact_queries += 1;
+                counters.cache_hits += (proj.part == hint) as u64;
+                slot.part = proj.part;
                 let s = proj.signed_distance;
                 if s >= band {
                     slot.set(s, *p, travel);
