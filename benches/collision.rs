@@ -33,6 +33,15 @@ use rayon::prelude::*;
 
 const THICKNESS_M: f32 = 0.002;
 const PHASES: usize = 8;
+const RELAX_PASSES: usize = 10;
+
+/// Moves every skin vertex by up to a fifth of a thickness, as a relaxation step might.
+fn jiggle(x: &mut [Vec3], pass: usize) {
+    for (i, p) in x.iter_mut().enumerate() {
+        let s = ((i * 31 + pass * 17) % 97) as f32 / 97.0 - 0.5;
+        *p += Vec3::new(s, -s, 0.5 * s) * (0.4 * THICKNESS_M);
+    }
+}
 
 /// A biceps-sized ellipsoid of 2 × 200 × 125 = 50,000 triangles.
 fn muscle() -> (Vec<Vec3>, Vec<[u32; 3]>) {
@@ -99,14 +108,24 @@ fn collision(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(4));
     for n in [10_000usize, 100_000] {
         let base = skin(n);
-        group.throughput(Throughput::Elements(n as u64));
-        for variant in ["naive_parry", "uncached", "cached"] {
+        // (name, passes per muscle frame): one pass per frame, or a relaxation-like frame of
+        // `RELAX_PASSES` passes with the skin moving a little between them.
+        let variants = [
+            ("naive_parry", 1),
+            ("uncached", 1),
+            ("cached", 1),
+            ("naive_parry_relax", RELAX_PASSES),
+            ("cached_relax", RELAX_PASSES),
+        ];
+        for (variant, passes) in variants {
+            group.throughput(Throughput::Elements((n * passes) as u64));
             let mut contact = SkinCollision::new(n, config).expect("valid config");
             let muscle = contact.add_collider(
                 ColliderMesh::from_mesh(rest.clone(), tris.clone()).expect("closed mesh"),
             );
             let mut x = base.clone();
             let mut phase = 0;
+            let naive = variant.starts_with("naive");
             group.bench_function(BenchmarkId::new(variant, n), |b| {
                 b.iter_custom(|iters| {
                     let mut total = Duration::ZERO;
@@ -117,31 +136,36 @@ fn collision(c: &mut Criterion) {
                         if variant == "uncached" {
                             contact.clear_cache();
                         }
-                        let start = Instant::now();
-                        if variant == "naive_parry" {
-                            let mesh = contact
-                                .collider(muscle)
-                                .expect("added")
-                                .parry_mesh()
-                                .expect("a mesh");
-                            let d: f32 = x
-                                .par_iter()
-                                .map(|p| mesh.project_point(&Pose::IDENTITY, *p, false).point.x)
-                                .sum();
-                            black_box(d);
-                        } else {
-                            black_box(contact.contact_pass(&mut x).expect("right length"));
+                        for pass in 0..passes {
+                            if pass > 0 {
+                                jiggle(&mut x, pass);
+                            }
+                            let start = Instant::now();
+                            if naive {
+                                let mesh = contact
+                                    .collider(muscle)
+                                    .expect("added")
+                                    .parry_mesh()
+                                    .expect("a mesh");
+                                let d: f32 = x
+                                    .par_iter()
+                                    .map(|p| mesh.project_point(&Pose::IDENTITY, *p, false).point.x)
+                                    .sum();
+                                black_box(d);
+                            } else {
+                                black_box(contact.contact_pass(&mut x).expect("right length"));
+                            }
+                            total += start.elapsed();
                         }
-                        total += start.elapsed();
                     }
                     total
                 })
             });
-            if variant != "naive_parry" {
+            if !naive {
                 let d = contact.diagnostics();
                 let per = |v: u64| v as f64 / d.passes.max(1) as f64;
                 eprintln!(
-                    "{variant} {n}: per pass {:.0} exact queries, {:.0} cache hits, {:.0} bound skips, {:.0} box skips",
+                    "{variant} {n}: per pass {:.0} BVH queries ({:.0} hinted hits), {:.0} bound skips, {:.0} box skips",
                     per(d.exact_queries),
                     per(d.cache_hits),
                     per(d.skipped_bound),
