@@ -5,19 +5,23 @@
 //! whole skin after the muscle moved to its next deformation phase (the refit is untimed here
 //! and measured on its own as `collider_refit`).
 //!
-//! Measured 2026-11-22 on the shared 2-core machine under heavy load from other builds (absolute
-//! times about 3-7x the quiet-machine figures of issue 8; compare the ratios), 2 threads:
+//! Measured 2026-11-22 00:12 UTC on the shared 2-core machine while others were building
+//! (absolute times drift by ±30 % or more between runs; compare the ratios within one run),
+//! 2 threads, `cargo bench --bench collision`:
 //!
-//! | skin vertices | parry `project_point` | pass, no cache | pass, cached | cached / naive |
-//! |---|---|---|---|---|
-//! | 10k | 53.0 ms (189 k/s) | 56.0 ms (179 k/s) | 47.3 ms (211 k/s) | 1.12x |
-//! | 100k | 402 ms (249 k/s) | 499 ms (200 k/s) | 397 ms (252 k/s) | 1.01x |
+//! | variant | 10k vertices | 100k vertices |
+//! |---|---|---|
+//! | parry `project_point` per vertex, 1 pass | 30.8 ms (324 k/s) | 265 ms (378 k/s) |
+//! | contact pass, cache cleared | 37.3 ms (268 k/s), 0.83x | 207 ms (484 k/s), 1.28x |
+//! | contact pass, cached | 23.7 ms (422 k/s), 1.30x | 202 ms (496 k/s), 1.31x |
+//! | parry, 10 passes per muscle frame | 218 ms (459 k/s) | 2.52 s (397 k/s) |
+//! | contact, 10 passes per muscle frame, cached | 125 ms (800 k/s), 1.74x | 1.52 s (657 k/s), 1.66x |
 //!
-//! Refit of the 50k-triangle muscle: 2.1 ms. The skin lies within 0.5-3 thicknesses of the
-//! muscle, so most vertices are in the contact band and need an exact query (about 1.2 per
-//! vertex per pass: pushed vertices are checked again); the cache turns the BVH search into a
-//! bounded one (75 % of queries hit the cached triangle) and skips 19 % of the vertices by
-//! distance bound, which only pays for the pass's extra work (signs, pushes, re-checks).
+//! Refit of the 50k-triangle muscle: 1.06 ms. A contact pass does more than the naive query
+//! (signs from feature normals, pushes, a re-check of every pushed vertex: about 1.2-1.3 BVH
+//! queries per vertex in the contact band); the cache bounds the BVH search with the cached
+//! triangle's distance (75 % of searches end on it) and skips vertices whose distance bound
+//! clears the band (19 % per frame, 43 % between relaxation passes).
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
