@@ -11,6 +11,7 @@
 //! |---|---|
 //! | [`mesh`] | validated triangle and tetrahedral topology, quality report |
 //! | [`stiffness`] | per-edge spring stiffness (Van Gelder Eq. 27, 29, 30, baselines) |
+//! | [`collision`] | skin against deforming muscle and bone meshes: sliding contact, thickness, friction |
 //! | [`solver`] | spring forces and energy, quasi-static relaxation |
 //! | [`fem`] | constant-strain membrane FEM, the reference the springs are measured against |
 //! | [`ecs`] | skin components, the frame's system sets and systems, [`ecs::DermisPlugin`] |
@@ -29,6 +30,7 @@
 pub mod anatomy;
 pub mod animation;
 pub mod bench;
+pub mod collision;
 pub mod ecs;
 pub mod export;
 pub mod fem;

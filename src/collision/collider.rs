@@ -1,0 +1,562 @@
+//! Colliders: closed deforming triangle meshes and rigid primitives, queried in their own frame.
+
+use glam::Vec3;
+use parry3d::bounding_volume::Aabb;
+use parry3d::math::Pose;
+use parry3d::query::{Ray, RayCast};
+use parry3d::shape::{
+    Ball, Capsule, CompositeShapeRef, TriMesh as ParryMesh, TrianglePointLocation,
+};
+
+use super::CollisionError;
+use crate::mesh::TriMesh;
+
+/// Marks "no triangle" in neighbour tables and caches.
+pub(crate) const NONE: u32 = u32::MAX;
+
+/// The closest point of a collider's surface to a query point, in the collider's local frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceProjection {
+    /// The closest surface point, m.
+    pub point: Vec3,
+    /// Unit direction along which the query point leaves the surface: away from the surface
+    /// for an outside point, towards it for an inside one (the outward feature normal when the
+    /// point lies on the surface).
+    pub normal: Vec3,
+    /// Distance to the surface, negative inside, m.
+    pub signed_distance: f32,
+    /// The triangle the point projected on (0 for primitives).
+    pub part: u32,
+    /// Where on `part`: barycentric coordinates on a triangle; the local surface point itself
+    /// for primitives. Carried by the surface as it moves (friction anchors).
+    pub coords: Vec3,
+}
+
+#[derive(Debug, Clone)]
+enum Shape {
+    Mesh(Box<MeshShape>),
+    Capsule { a: Vec3, b: Vec3, radius: f32 },
+    Ball { radius: f32 },
+}
+
+#[derive(Debug, Clone)]
+struct MeshShape {
+    /// Built without `ORIENTED`: refits cost only the BVH.
+    mesh: ParryMesh,
+    /// Vertices at the end of the previous frame.
+    prev: Vec<Vec3>,
+    /// Vertices of the current frame (the mesh holds interpolated ones during substeps).
+    current: Vec<Vec3>,
+    /// Triangle across each of a triangle's edges, in parry's local edge numbering (0: AB,
+    /// 1: BC, 2: AC).
+    across: Vec<[u32; 3]>,
+    /// CSR vertex → incident triangles.
+    vt_offsets: Vec<u32>,
+    vt: Vec<u32>,
+}
+
+/// A closed surface the skin slides over: a deforming muscle mesh, or a rigid bone (a capsule,
+/// a ball, or a closed mesh moved only by its pose).
+///
+/// Every shape is stored in its rest frame with a [`Pose`]; queries transform the skin vertex
+/// into that frame, so moving a rigid bone is one [`set_pose`](Self::set_pose) and no refit. A
+/// deforming mesh is refreshed with [`set_vertices`](Self::set_vertices), a BVH refit (the
+/// mesh is never parry-`ORIENTED`, which would recompute pseudo-normals on every refit):
+/// inside/outside comes from the normal of the feature the point projects on, face normals
+/// for faces, the sum of the two face normals for edges, angle-weighted normals for vertices.
+///
+/// ```
+/// use dermis::collision::ColliderMesh;
+/// use glam::Vec3;
+/// // A tetrahedron, wound counter-clockwise seen from outside.
+/// let v = vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z];
+/// let t = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+/// let tet = ColliderMesh::from_mesh(v, t).unwrap();
+/// let inside = tet.project_point(Vec3::splat(0.1));
+/// assert!(inside.signed_distance < 0.0);
+/// let outside = tet.project_point(Vec3::new(0.2, 0.2, -0.5));
+/// assert!((outside.signed_distance - 0.5).abs() < 1e-6);
+///
+/// // Holes are rejected with the offending edge named.
+/// let open = ColliderMesh::from_mesh(
+///     vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+///     vec![[0, 2, 1], [0, 1, 3], [0, 3, 2]],
+/// );
+/// assert!(open.unwrap_err().to_string().contains("hole"));
+/// ```
+#[derive(Debug, Clone)]
+pub struct ColliderMesh {
+    shape: Shape,
+    pose: Pose,
+    prev_pose: Pose,
+    /// Sum of surface-motion bounds over every state change, m (distance-bound cache).
+    travel_m: f64,
+    local_aabb: Aabb,
+}
+
+impl ColliderMesh {
+    /// A closed, consistently wound triangle mesh (counter-clockwise seen from outside), at the
+    /// identity pose.
+    ///
+    /// Rejected: invalid topology or geometry, holes (an edge with one triangle), edges whose two
+    /// triangles wind the same way, and inside-out meshes (negative signed volume). An
+    /// inside-out mesh is rejected rather than flipped: it usually means an exporter used the
+    /// opposite convention, which the caller should know about.
+    pub fn from_mesh(
+        vertices: Vec<Vec3>,
+        triangles: Vec<[u32; 3]>,
+    ) -> Result<Self, CollisionError> {
+        let checked = TriMesh::new(vertices, triangles)?;
+        let topo = checked.topology();
+        let tris = topo.triangles();
+        let pos = checked.positions();
+        let mut across = vec![[NONE; 3]; tris.len()];
+        for (&[a, b], &[t0, t1]) in topo.edges().iter().zip(topo.edge_triangles()) {
+            if t1 == crate::mesh::NO_TRIANGLE {
+                return Err(CollisionError::Hole {
+                    a,
+                    b,
+                    triangle: t0 as usize,
+                });
+            }
+            let (l0, f0) = directed_edge(tris[t0 as usize], a, b);
+            let (l1, f1) = directed_edge(tris[t1 as usize], a, b);
+            if f0 == f1 {
+                return Err(CollisionError::InconsistentWinding {
+                    a,
+                    b,
+                    first: t0 as usize,
+                    second: t1 as usize,
+                });
+            }
+            across[t0 as usize][l0] = t1;
+            across[t1 as usize][l1] = t0;
+        }
+        let volume: f64 = tris
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| pos[i as usize].as_dvec3());
+                a.dot(b.cross(c)) / 6.0
+            })
+            .sum();
+        if volume <= 0.0 {
+            return Err(CollisionError::InsideOut { volume_m3: volume });
+        }
+        let n = pos.len();
+        let mut vt_offsets = vec![0u32; n + 1];
+        for t in tris {
+            for &v in t {
+                vt_offsets[v as usize + 1] += 1;
+            }
+        }
+        for i in 0..n {
+            vt_offsets[i + 1] += vt_offsets[i];
+        }
+        let mut fill = vt_offsets.clone();
+        let mut vt = vec![0u32; tris.len() * 3];
+        for (ti, t) in tris.iter().enumerate() {
+            for &v in t {
+                vt[fill[v as usize] as usize] = ti as u32;
+                fill[v as usize] += 1;
+            }
+        }
+        let vertices = pos.to_vec();
+        let mesh = ParryMesh::new(vertices.clone(), tris.to_vec())
+            .map_err(|e| CollisionError::Parry(e.to_string()))?;
+        let local_aabb = mesh.local_aabb();
+        Ok(Self::with_shape(
+            Shape::Mesh(Box::new(MeshShape {
+                mesh,
+                prev: vertices.clone(),
+                current: vertices,
+                across,
+                vt_offsets,
+                vt,
+            })),
+            local_aabb,
+        ))
+    }
+
+    /// A capsule (a bone) around the segment `a`–`b` of its rest frame, `radius_m` thick.
+    pub fn capsule(a: Vec3, b: Vec3, radius_m: f32) -> Result<Self, CollisionError> {
+        if !(a.is_finite() && b.is_finite() && radius_m.is_finite() && radius_m > 0.0) {
+            return Err(CollisionError::BadShape {
+                what: "capsule",
+                detail: format!("a {a}, b {b}, radius {radius_m}"),
+            });
+        }
+        let aabb = Aabb::new(
+            a.min(b) - Vec3::splat(radius_m),
+            a.max(b) + Vec3::splat(radius_m),
+        );
+        Ok(Self::with_shape(
+            Shape::Capsule {
+                a,
+                b,
+                radius: radius_m,
+            },
+            aabb,
+        ))
+    }
+
+    /// A ball of `radius_m` centred on its rest frame's origin.
+    pub fn ball(radius_m: f32) -> Result<Self, CollisionError> {
+        if !(radius_m.is_finite() && radius_m > 0.0) {
+            return Err(CollisionError::BadShape {
+                what: "ball",
+                detail: format!("radius {radius_m}"),
+            });
+        }
+        let r = Vec3::splat(radius_m);
+        Ok(Self::with_shape(
+            Shape::Ball { radius: radius_m },
+            Aabb::new(-r, r),
+        ))
+    }
+
+    fn with_shape(shape: Shape, local_aabb: Aabb) -> Self {
+        Self {
+            shape,
+            pose: Pose::IDENTITY,
+            prev_pose: Pose::IDENTITY,
+            travel_m: 0.0,
+            local_aabb,
+        }
+    }
+
+    /// Builder: the same collider at `pose` (also its previous-frame pose).
+    pub fn with_pose(mut self, pose: Pose) -> Self {
+        self.pose = pose;
+        self.prev_pose = pose;
+        self
+    }
+
+    /// The current pose (rest frame → world).
+    pub fn pose(&self) -> Pose {
+        self.pose
+    }
+
+    /// Moves the collider rigidly. No refit: queries happen in the rest frame.
+    pub fn set_pose(&mut self, pose: Pose) -> Result<(), CollisionError> {
+        if !pose.is_finite() {
+            return Err(CollisionError::NonFinite {
+                what: "pose",
+                index: 0,
+            });
+        }
+        self.travel_m += pose_motion(&self.local_aabb, &self.pose, &pose) as f64;
+        self.pose = pose;
+        Ok(())
+    }
+
+    /// Deforms a mesh collider (rest-frame positions, same count and order as built): a BVH
+    /// refit, no pseudo-normal recomputation.
+    pub fn set_vertices(&mut self, vertices: &[Vec3]) -> Result<(), CollisionError> {
+        let Shape::Mesh(m) = &mut self.shape else {
+            return Err(CollisionError::NotAMesh);
+        };
+        if vertices.len() != m.current.len() {
+            return Err(CollisionError::Length {
+                what: "collider vertices",
+                given: vertices.len(),
+                expected: m.current.len(),
+            });
+        }
+        if let Some(i) = vertices.iter().position(|v| !v.is_finite()) {
+            return Err(CollisionError::NonFinite {
+                what: "collider vertex",
+                index: i,
+            });
+        }
+        let moved = max_displacement(m.mesh.vertices(), vertices);
+        m.current.copy_from_slice(vertices);
+        m.mesh.set_vertices(vertices);
+        self.local_aabb = m.mesh.local_aabb();
+        self.travel_m += moved as f64;
+        Ok(())
+    }
+
+    /// Number of triangles (0 for primitives).
+    pub fn triangle_count(&self) -> usize {
+        match &self.shape {
+            Shape::Mesh(m) => m.mesh.indices().len(),
+            _ => 0,
+        }
+    }
+
+    /// The parry mesh of a mesh collider, in its rest frame (for comparisons and debugging).
+    pub fn parry_mesh(&self) -> Option<&ParryMesh> {
+        match &self.shape {
+            Shape::Mesh(m) => Some(&m.mesh),
+            _ => None,
+        }
+    }
+
+    pub(crate) fn travel_m(&self) -> f64 {
+        self.travel_m
+    }
+
+    pub(crate) fn local_aabb(&self) -> &Aabb {
+        &self.local_aabb
+    }
+
+    /// Bound on how far any surface point moved since the previous frame, m.
+    pub(crate) fn frame_motion_m(&self) -> f32 {
+        let deform = match &self.shape {
+            Shape::Mesh(m) => max_displacement(&m.prev, &m.current),
+            _ => 0.0,
+        };
+        deform + pose_motion(&self.local_aabb, &self.prev_pose, &self.pose)
+    }
+
+    /// Puts the collider in the state a fraction `s` of the way from the previous frame to the
+    /// current one (`s == 1`: exactly the current state).
+    pub(crate) fn enter_substep(&mut self, s: f32, current_pose: &Pose) {
+        let pose = if s >= 1.0 {
+            *current_pose
+        } else {
+            self.prev_pose.lerp(current_pose, s)
+        };
+        self.travel_m += pose_motion(&self.local_aabb, &self.pose, &pose) as f64;
+        self.pose = pose;
+        if let Shape::Mesh(m) = &mut self.shape
+            && m.prev != m.current
+        {
+            let target: Vec<Vec3> = if s >= 1.0 {
+                m.current.clone()
+            } else {
+                m.prev
+                    .iter()
+                    .zip(&m.current)
+                    .map(|(a, b)| a.lerp(*b, s))
+                    .collect()
+            };
+            self.travel_m += max_displacement(m.mesh.vertices(), &target) as f64;
+            m.mesh.set_vertices(&target);
+            self.local_aabb = m.mesh.local_aabb();
+        }
+    }
+
+    /// The current state becomes the previous frame's.
+    pub(crate) fn commit_frame(&mut self) {
+        self.prev_pose = self.pose;
+        if let Shape::Mesh(m) = &mut self.shape {
+            m.prev.copy_from_slice(&m.current);
+        }
+    }
+
+    /// Projects a world point on the surface (no cache; the reference answer). The result is in
+    /// world coordinates.
+    pub fn project_point(&self, p: Vec3) -> SurfaceProjection {
+        let mut r = self.project_local(self.pose.inverse_transform_point(p), NONE);
+        r.point = self.pose.transform_point(r.point);
+        r.normal = self.pose.transform_vector(r.normal);
+        r
+    }
+
+    /// Projects a rest-frame point, testing triangle `hint` first: its distance bounds the BVH
+    /// search, so the answer is the same as without a hint.
+    pub(crate) fn project_local(&self, p: Vec3, hint: u32) -> SurfaceProjection {
+        match &self.shape {
+            Shape::Mesh(m) => m.project(p, hint),
+            Shape::Capsule { a, b, radius } => {
+                let ab = *b - *a;
+                let len2 = ab.length_squared();
+                let t = if len2 > 0.0 {
+                    ((p - *a).dot(ab) / len2).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                round_projection(p, *a + ab * t, *radius, ab)
+            }
+            Shape::Ball { radius } => round_projection(p, Vec3::ZERO, *radius, Vec3::X),
+        }
+    }
+
+    /// The current rest-frame position of a surface point given by `part` and `coords` (see
+    /// [`SurfaceProjection`]).
+    pub(crate) fn local_surface_point(&self, part: u32, coords: Vec3) -> Vec3 {
+        match &self.shape {
+            Shape::Mesh(m) => {
+                let v = m.mesh.vertices();
+                let [a, b, c] = m.mesh.indices()[part as usize].map(|i| v[i as usize]);
+                a * coords.x + b * coords.y + c * coords.z
+            }
+            _ => coords,
+        }
+    }
+
+    /// First crossing of the rest-frame segment `from → from + delta` into the solid, as the
+    /// entry point and the outward unit normal there.
+    pub(crate) fn cast_local_segment(&self, from: Vec3, delta: Vec3) -> Option<(Vec3, Vec3)> {
+        let ray = Ray::new(from, delta);
+        let hit = match &self.shape {
+            Shape::Mesh(m) => m.mesh.cast_local_ray_and_get_normal(&ray, 1.0, false),
+            Shape::Capsule { a, b, radius } => {
+                Capsule::new(*a, *b, *radius).cast_local_ray_and_get_normal(&ray, 1.0, true)
+            }
+            Shape::Ball { radius } => {
+                Ball::new(*radius).cast_local_ray_and_get_normal(&ray, 1.0, true)
+            }
+        }?;
+        if hit.time_of_impact <= 0.0 {
+            return None; // Started inside: not a crossing, the projection handles it.
+        }
+        let mut n = hit.normal.normalize_or_zero();
+        if n.dot(delta) > 0.0 {
+            n = -n;
+        }
+        Some((ray.point_at(hit.time_of_impact), n))
+    }
+}
+
+impl MeshShape {
+    fn face_normal(&self, t: u32) -> Vec3 {
+        let v = self.mesh.vertices();
+        let [a, b, c] = self.mesh.indices()[t as usize].map(|i| v[i as usize]);
+        (b - a).cross(c - a).normalize_or_zero()
+    }
+
+    fn vertex_normal(&self, vertex: u32) -> Vec3 {
+        let v = self.mesh.vertices();
+        let range = self.vt_offsets[vertex as usize] as usize
+            ..self.vt_offsets[vertex as usize + 1] as usize;
+        let mut sum = Vec3::ZERO;
+        for &t in &self.vt[range] {
+            let idx = self.mesh.indices()[t as usize];
+            let k = idx.iter().position(|&i| i == vertex).unwrap_or(0);
+            let p = v[idx[k] as usize];
+            let e1 = (v[idx[(k + 1) % 3] as usize] - p).normalize_or_zero();
+            let e2 = (v[idx[(k + 2) % 3] as usize] - p).normalize_or_zero();
+            let angle = e1.dot(e2).clamp(-1.0, 1.0).acos();
+            sum += self.face_normal(t) * angle;
+        }
+        sum.normalize_or_zero()
+    }
+
+    fn project(&self, p: Vec3, hint: u32) -> SurfaceProjection {
+        let shape = CompositeShapeRef(&self.mesh);
+        let mut bound = f32::MAX;
+        if hint != NONE && (hint as usize) < self.mesh.indices().len() {
+            use parry3d::query::PointQueryWithLocation;
+            let (proj, _) = self
+                .mesh
+                .triangle(hint)
+                .project_local_point_and_get_location(p, false);
+            let d = (proj.point - p).length();
+            // Strictly above the hint's own distance: the hint (or a closer triangle) is found.
+            bound = d * (1.0 + 1e-5) + f32::MIN_POSITIVE;
+        }
+        let found = shape
+            .project_local_point_and_get_location(p, bound, false)
+            .or_else(|| shape.project_local_point_and_get_location(p, f32::MAX, false));
+        let Some((t, proj, location)) = found else {
+            // Only for non-finite input.
+            return SurfaceProjection {
+                point: p,
+                normal: Vec3::Z,
+                signed_distance: 0.0,
+                part: 0,
+                coords: Vec3::new(1.0, 0.0, 0.0),
+            };
+        };
+        let idx = self.mesh.indices()[t as usize];
+        let feature_normal = match location {
+            TrianglePointLocation::OnEdge(i, _) => {
+                let other = self.across[t as usize][i as usize];
+                (self.face_normal(t) + self.face_normal(other)).normalize_or_zero()
+            }
+            TrianglePointLocation::OnVertex(i) => self.vertex_normal(idx[i as usize]),
+            _ => self.face_normal(t),
+        };
+        let coords = location
+            .barycentric_coordinates()
+            .map_or(Vec3::splat(1.0 / 3.0), Vec3::from_array);
+        oriented(p, proj.point, feature_normal, t, coords)
+    }
+}
+
+/// Signed distance and push direction from the feature normal.
+fn oriented(
+    p: Vec3,
+    point: Vec3,
+    feature_normal: Vec3,
+    part: u32,
+    coords: Vec3,
+) -> SurfaceProjection {
+    let d = p - point;
+    let dist = d.length();
+    let inside = d.dot(feature_normal) < 0.0;
+    let normal = if dist > 1e-12 {
+        if inside { -d / dist } else { d / dist }
+    } else {
+        feature_normal
+    };
+    SurfaceProjection {
+        point,
+        normal,
+        signed_distance: if inside { -dist } else { dist },
+        part,
+        coords,
+    }
+}
+
+fn round_projection(p: Vec3, centre: Vec3, radius: f32, axis: Vec3) -> SurfaceProjection {
+    let v = p - centre;
+    let len = v.length();
+    let n = if len > 1e-12 {
+        v / len
+    } else {
+        axis.any_orthonormal_vector()
+    };
+    let point = centre + n * radius;
+    SurfaceProjection {
+        point,
+        normal: n,
+        signed_distance: len - radius,
+        part: 0,
+        coords: point,
+    }
+}
+
+/// Local edge index (parry's: 0 AB, 1 BC, 2 AC) of edge {a, b} in `tri`, and whether `tri`
+/// runs it a → b.
+fn directed_edge(tri: [u32; 3], a: u32, b: u32) -> (usize, bool) {
+    for (local, (i, j)) in [(0usize, 1usize), (1, 2), (0, 2)].into_iter().enumerate() {
+        let (u, v) = (tri[i], tri[j]);
+        if (u, v) == (a, b) || (u, v) == (b, a) {
+            // Winding order of the pair within the triangle: (0,1), (1,2) forward, (0,2) backward.
+            let forward = if local == 2 { v == a } else { u == a };
+            return (local, forward);
+        }
+    }
+    (0, false)
+}
+
+fn max_displacement(a: &[Vec3], b: &[Vec3]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| a.distance_squared(*b))
+        .fold(0.0f32, f32::max)
+        .sqrt()
+}
+
+/// Bound on the displacement of any point of `aabb` (rest frame) between two poses: the largest
+/// corner displacement (the displacement is affine in the point, its length convex).
+fn pose_motion(aabb: &Aabb, from: &Pose, to: &Pose) -> f32 {
+    if from == to {
+        return 0.0;
+    }
+    let (lo, hi) = (aabb.mins, aabb.maxs);
+    let mut m = 0.0f32;
+    for k in 0..8 {
+        let c = Vec3::new(
+            if k & 1 == 0 { lo.x } else { hi.x },
+            if k & 2 == 0 { lo.y } else { hi.y },
+            if k & 4 == 0 { lo.z } else { hi.z },
+        );
+        m = m.max(from.transform_point(c).distance(to.transform_point(c)));
+    }
+    // Rounding of the transforms.
+    m * (1.0 + 1e-5) + 1e-7 * (lo.abs().max(hi.abs()).max_element() + to.translation.length())
+}

@@ -1,0 +1,673 @@
+use glam::{Quat, Vec3};
+use parry3d::math::Pose;
+use parry3d::query::PointQuery;
+use parry3d::shape::{TriMesh as ParryMesh, TriMeshFlags};
+
+use super::*;
+use crate::mesh::TriMesh;
+use crate::solver::{Loads, RelaxConfig, SpringSystem, VertexAnchor};
+use crate::stiffness::{Modulus, StiffnessRule};
+
+/// A flat `n` x `n` sheet of side `size` centred on (0, 0, z).
+fn sheet(n: u32, size: f32, z: f32) -> TriMesh {
+    let mut p = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let u = i as f32 / (n - 1) as f32 - 0.5;
+            let v = j as f32 / (n - 1) as f32 - 0.5;
+            p.push(Vec3::new(u * size, v * size, z));
+        }
+    }
+    let mut t = Vec::new();
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let a = j * n + i;
+            t.push([a, a + 1, a + n + 1]);
+            t.push([a, a + n + 1, a + n]);
+        }
+    }
+    TriMesh::new(p, t).unwrap()
+}
+
+/// An open tube along x: `rings` rings of `around` vertices, from `x0` to `x1`.
+fn tube(around: u32, rings: u32, radius: f32, x0: f32, x1: f32) -> TriMesh {
+    let mut p = Vec::new();
+    for j in 0..rings {
+        let x = x0 + (x1 - x0) * j as f32 / (rings - 1) as f32;
+        for i in 0..around {
+            let a = std::f32::consts::TAU * i as f32 / around as f32;
+            p.push(Vec3::new(x, radius * a.cos(), radius * a.sin()));
+        }
+    }
+    let mut t = Vec::new();
+    for j in 0..rings - 1 {
+        for i in 0..around {
+            let (a, b) = (j * around + i, j * around + (i + 1) % around);
+            let (c, d) = (a + around, b + around);
+            t.push([a, b, d]);
+            t.push([a, d, c]);
+        }
+    }
+    TriMesh::new(p, t).unwrap()
+}
+
+fn springs(mesh: &TriMesh) -> SpringSystem {
+    let k = StiffnessRule::AreaOverLengthSquared
+        .edge_stiffness(mesh, &Modulus::Uniform(1000.0))
+        .unwrap();
+    SpringSystem::from_mesh(mesh, &k).unwrap()
+}
+
+/// One frame: the contact's substeps, each followed by `iterations` of relaxation.
+fn frame(
+    contact: &mut SkinCollision,
+    system: &SpringSystem,
+    x: &mut [Vec3],
+    loads: &Loads<'_>,
+    iterations: u32,
+) {
+    let plan = contact.begin_frame(x).unwrap();
+    for _ in 0..plan.substeps {
+        contact.substep(x).unwrap();
+        system
+            .relax_projected(x, loads, &budget(iterations), Some(&mut *contact))
+            .unwrap();
+        assert!(contact.diagnostics().unresolved.is_empty());
+    }
+}
+
+fn budget(iterations: u32) -> RelaxConfig {
+    RelaxConfig {
+        max_iterations: iterations,
+        tolerance: 1e-7,
+        ..RelaxConfig::DEFAULT
+    }
+}
+
+/// Deterministic pseudo-random numbers in [0, 1).
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+    fn point(&mut self, half: f32) -> Vec3 {
+        Vec3::new(self.next(), self.next(), self.next()) * (2.0 * half) - Vec3::splat(half)
+    }
+}
+
+fn blob(n_lat: u32, n_lon: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    shapes::ellipsoid(
+        Vec3::new(0.01, -0.02, 0.03),
+        Vec3::new(0.3, 0.2, 0.25),
+        n_lat,
+        n_lon,
+    )
+    .unwrap()
+}
+
+/// A smooth non-convex deformation of the blob: a travelling bulge and a dent.
+fn deform(v: &[Vec3], phase: f32) -> Vec<Vec3> {
+    v.iter()
+        .map(|p| {
+            let bulge = 1.0 + 0.15 * (4.0 * p.x + phase).sin() * (3.0 * p.y).cos();
+            Vec3::new(
+                p.x,
+                p.y * bulge,
+                p.z * (1.0 - 0.3 * (-(p.x * p.x) * 40.0).exp()),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn holes_flips_and_inside_out_meshes_are_rejected_with_the_culprit_named() {
+    let (v, t) = blob(6, 8);
+    let mut holed = t.clone();
+    let removed = holed.remove(5);
+    let err = ColliderMesh::from_mesh(v.clone(), holed).unwrap_err();
+    let CollisionError::Hole { a, b, .. } = err else {
+        panic!("expected a hole, got {err}");
+    };
+    assert!(removed.contains(&a) && removed.contains(&b));
+    assert!(err.to_string().contains("hole"));
+
+    let mut flipped = t.clone();
+    flipped[7].swap(1, 2);
+    let err = ColliderMesh::from_mesh(v.clone(), flipped).unwrap_err();
+    let CollisionError::InconsistentWinding { first, second, .. } = err else {
+        panic!("expected inconsistent winding, got {err}");
+    };
+    assert!(first == 7 || second == 7, "{err}");
+
+    let inside_out: Vec<[u32; 3]> = t.iter().map(|&[a, b, c]| [a, c, b]).collect();
+    let err = ColliderMesh::from_mesh(v.clone(), inside_out).unwrap_err();
+    let CollisionError::InsideOut { volume_m3 } = err else {
+        panic!("expected inside out, got {err}");
+    };
+    // The ellipsoid's volume, 4/3 π abc, up to the polyhedral approximation.
+    let exact = 4.0 / 3.0 * std::f64::consts::PI * 0.3 * 0.2 * 0.25;
+    assert!(
+        volume_m3 < -0.5 * exact && volume_m3 > -exact,
+        "{volume_m3}"
+    );
+    assert!(err.to_string().contains("swap"));
+
+    assert!(ColliderMesh::capsule(Vec3::ZERO, Vec3::X, -1.0).is_err());
+    assert!(ColliderMesh::from_mesh(v, t).is_ok());
+}
+
+/// The sign from feature normals matches parry's own pseudo-normal test on an `ORIENTED` mesh
+/// (an independent implementation), and distances and closest points match parry's.
+#[test]
+fn signed_distance_matches_parry_oriented_mesh_before_and_after_deformation() {
+    let (v, t) = blob(14, 20);
+    let mut collider = ColliderMesh::from_mesh(v.clone(), t.clone()).unwrap();
+    let mut rng = Lcg(7);
+    for phase in [None, Some(0.4), Some(2.0)] {
+        let verts = match phase {
+            None => v.clone(),
+            Some(ph) => {
+                let d = deform(&v, ph);
+                collider.set_vertices(&d).unwrap();
+                d
+            }
+        };
+        let oriented = ParryMesh::with_flags(verts, t.clone(), TriMeshFlags::ORIENTED).unwrap();
+        let mut inside = 0;
+        for _ in 0..3000 {
+            let p = rng.point(0.4);
+            let ours = collider.project_point(p);
+            let theirs = oriented.project_point(&Pose::IDENTITY, p, false);
+            let dist = theirs.point.distance(p);
+            assert!(
+                (ours.signed_distance.abs() - dist).abs() < 1e-6,
+                "{p} {phase:?}"
+            );
+            // Near-ties may pick another closest point at the same distance.
+            assert!(ours.point.distance(theirs.point) < 1e-4, "{p} {phase:?}");
+            if dist > 1e-5 {
+                assert_eq!(ours.signed_distance < 0.0, theirs.is_inside, "{p}");
+            }
+            inside += theirs.is_inside as u32;
+        }
+        assert!(
+            inside > 300,
+            "the sample must probe the inside too ({inside})"
+        );
+    }
+}
+
+/// A cached triangle, however stale, gives the same closest point as the naive query.
+#[test]
+fn cached_queries_equal_naive_project_point() {
+    let (v, t) = blob(20, 30);
+    let mut collider = ColliderMesh::from_mesh(v.clone(), t.clone()).unwrap();
+    let mut rng = Lcg(11);
+    let points: Vec<Vec3> = (0..2000).map(|_| rng.point(0.4)).collect();
+    let mut hints: Vec<u32> = points
+        .iter()
+        .map(|p| collider.project_point(*p).part)
+        .collect();
+    for frame in 0..6 {
+        let d = deform(&v, 0.3 * frame as f32);
+        collider.set_vertices(&d).unwrap();
+        let parry = collider.parry_mesh().unwrap();
+        for (p, hint) in points.iter().zip(&mut hints) {
+            let naive = parry.project_point(&Pose::IDENTITY, *p, false);
+            let cached = collider.project_local(*p, *hint);
+            assert!(
+                (cached.signed_distance.abs() - naive.point.distance(*p)).abs() < 1e-7,
+                "frame {frame} point {p}"
+            );
+            assert!(cached.point.distance(naive.point) < 1e-6);
+            *hint = cached.part;
+        }
+        // Stale and even wrong hints must not change the answer.
+        let wrong = collider.project_local(points[0], (frame * 97) as u32 % t.len() as u32);
+        assert!(
+            wrong
+                .point
+                .distance(collider.project_point(points[0]).point)
+                < 1e-6
+        );
+    }
+
+    // Whole passes: with the cache and bounds, the same positions as with no cache at all.
+    let n = points.len();
+    let config = ContactConfig {
+        thickness_m: 0.01,
+        ..ContactConfig::DEFAULT
+    };
+    let mut cached = SkinCollision::new(n, config).unwrap();
+    let mut naive = SkinCollision::new(n, config).unwrap();
+    for s in [&mut cached, &mut naive] {
+        s.add_collider(ColliderMesh::from_mesh(v.clone(), t.clone()).unwrap());
+    }
+    let order: Vec<u32> = (0..n as u32).collect();
+    let (mut xa, mut xb) = (points.clone(), points.clone());
+    for frame in 0..5 {
+        let d = deform(&v, 0.05 * frame as f32);
+        for s in [&mut cached, &mut naive] {
+            s.collider_mut(ColliderId(0))
+                .unwrap()
+                .set_vertices(&d)
+                .unwrap();
+        }
+        cached.advance_frame(&mut xa).unwrap();
+        naive.clear_cache();
+        naive.advance_frame(&mut xb).unwrap();
+        for k in 0..3 {
+            // Jiggle the skin like a solver step would.
+            for (i, (a, b)) in xa.iter_mut().zip(&mut xb).enumerate() {
+                let step = 0.002 * ((i * 7 + k) as f32).sin();
+                *a += Vec3::splat(step);
+                *b += Vec3::splat(step);
+            }
+            cached.project(&mut xa, &order);
+            naive.clear_cache();
+            naive.project(&mut xb, &order);
+        }
+        let max = xa
+            .iter()
+            .zip(&xb)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0f32, f32::max);
+        assert!(max < 1e-6, "frame {frame}: cached pass differs by {max}");
+    }
+    let d = cached.diagnostics();
+    assert!(
+        d.skipped_bound + d.skipped_aabb > 0 && d.cache_hits > 0,
+        "{d:?}"
+    );
+}
+
+#[test]
+fn sheet_draped_over_a_sphere_rests_at_the_thickness() {
+    let (r, centre, h) = (0.3, Vec3::new(0.0, 0.0, -0.2), 0.01);
+    let (v, t) = shapes::ellipsoid(centre, Vec3::splat(r), 30, 48).unwrap();
+    let oriented = ParryMesh::with_flags(v.clone(), t.clone(), TriMeshFlags::ORIENTED).unwrap();
+    let mesh = sheet(21, 1.0, 0.0);
+    let system = springs(&mesh);
+    let n = mesh.positions().len();
+    let pinned: Vec<bool> = mesh
+        .positions()
+        .iter()
+        .map(|p| p.x.abs() > 0.49 || p.y.abs() > 0.49)
+        .collect();
+    let config = ContactConfig {
+        thickness_m: h,
+        ..ContactConfig::DEFAULT
+    };
+    let mut contact = SkinCollision::new(n, config).unwrap();
+    contact.add_collider(ColliderMesh::from_mesh(v, t).unwrap());
+    let mut x = mesh.positions().to_vec();
+    contact.advance_frame(&mut x).unwrap();
+    let loads = Loads {
+        pinned: Some(&pinned),
+        ..Default::default()
+    };
+    system
+        .relax_projected(&mut x, &loads, &budget(600), Some(&mut contact))
+        .unwrap();
+    assert!(contact.diagnostics().unresolved.is_empty());
+    let mut touching = 0;
+    for (i, p) in x.iter().enumerate() {
+        let proj = oriented.project_point(&Pose::IDENTITY, *p, false);
+        let d = proj.point.distance(*p);
+        assert!(!proj.is_inside, "vertex {i} inside");
+        assert!(d > h - 1e-5, "vertex {i} at {d}, thickness {h}");
+        // The sphere's cap pokes 0.1 through the sheet's plane: the middle must lie on it.
+        let radial = (p.x * p.x + p.y * p.y).sqrt();
+        if radial < 0.1 {
+            assert!((d - h).abs() < 1e-4, "central vertex {i} at {d}, not {h}");
+            touching += 1;
+        }
+    }
+    assert!(touching >= 9, "{touching}");
+}
+
+/// Sheet over a ball sliding along x by `shift` over `frames` frames; returns the sheet at the
+/// end and at the start.
+fn slide(friction: f32, shift: f32, frames: u32) -> (Vec<Vec3>, Vec<Vec3>, Vec<Vec3>) {
+    let (r, h) = (0.3, 0.01);
+    let start = Vec3::new(-0.5 * shift, 0.0, -0.22);
+    let mesh = sheet(11, 1.0, 0.0);
+    let system = springs(&mesh);
+    let n = mesh.positions().len();
+    let pinned: Vec<bool> = mesh
+        .positions()
+        .iter()
+        .map(|p| p.x.abs() > 0.49 || p.y.abs() > 0.49)
+        .collect();
+    // Tangential anchors hold the sheet in place; normal motion is free.
+    let anchors: Vec<VertexAnchor> = mesh
+        .positions()
+        .iter()
+        .map(|p| VertexAnchor {
+            target: *p,
+            normal: Vec3::Z,
+            k_normal: 0.0,
+            k_tangent: 200.0,
+        })
+        .collect();
+    let loads = Loads {
+        pinned: Some(&pinned),
+        anchors: Some(&anchors),
+        ..Default::default()
+    };
+    let config = ContactConfig {
+        thickness_m: h,
+        friction,
+        ..ContactConfig::DEFAULT
+    };
+    let relax = |contact: &mut SkinCollision, x: &mut Vec<Vec3>| {
+        frame(contact, &system, x, &loads, 3000);
+    };
+    let mut contact = SkinCollision::new(n, config).unwrap();
+    let ball = contact.add_collider(
+        ColliderMesh::ball(r)
+            .unwrap()
+            .with_pose(Pose::from_translation(start)),
+    );
+    let mut x = mesh.positions().to_vec();
+    relax(&mut contact, &mut x);
+    let initial = x.clone();
+    for f in 1..=frames {
+        let c = start + Vec3::X * shift * f as f32 / frames as f32;
+        contact
+            .collider_mut(ball)
+            .unwrap()
+            .set_pose(Pose::from_translation(c))
+            .unwrap();
+        relax(&mut contact, &mut x);
+    }
+    // A fresh drape over the ball at its final place.
+    let mut fresh_contact = SkinCollision::new(n, config).unwrap();
+    fresh_contact.add_collider(
+        ColliderMesh::ball(r)
+            .unwrap()
+            .with_pose(Pose::from_translation(start + Vec3::X * shift)),
+    );
+    let mut fresh = mesh.positions().to_vec();
+    relax(&mut fresh_contact, &mut fresh);
+    (x, initial, fresh)
+}
+
+/// Mean x-displacement of the vertices touching the top of the ball initially.
+fn carried(x: &[Vec3], initial: &[Vec3]) -> f32 {
+    let top: Vec<usize> = (0..x.len())
+        .filter(|&i| initial[i].x.abs() < 0.11 && initial[i].y.abs() < 0.11)
+        .collect();
+    top.iter().map(|&i| x[i].x - initial[i].x).sum::<f32>() / top.len() as f32
+}
+
+#[test]
+fn frictionless_sliding_ball_carries_no_vertex_and_friction_drags_the_sheet() {
+    let shift = 0.1;
+    let (free, initial, fresh) = slide(0.0, shift, 5);
+    // Frictionless contact has no memory: the sheet is where a fresh drape puts it.
+    let max = free
+        .iter()
+        .zip(&fresh)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0f32, f32::max);
+    assert!(
+        max < 0.05 * shift,
+        "frictionless result differs from a fresh drape by {max}"
+    );
+    let moved_free = carried(&free, &initial);
+    let (stuck, initial_stuck, _) = slide(1.0, shift, 5);
+    let moved_stuck = carried(&stuck, &initial_stuck);
+    assert!(
+        moved_free.abs() < 0.2 * shift,
+        "frictionless carried {moved_free}"
+    );
+    assert!(
+        moved_stuck > 0.5 * shift,
+        "sticking carried only {moved_stuck}"
+    );
+}
+
+/// Winding number of a closed polygon around the line through `c` along `axis`.
+fn winding(ring: &[Vec3], c: Vec3, axis: Vec3) -> f32 {
+    let u = axis.any_orthonormal_vector();
+    let w = axis.cross(u);
+    let angle = |p: Vec3| {
+        let d = p - c;
+        d.dot(w).atan2(d.dot(u))
+    };
+    let mut total = 0.0;
+    for k in 0..ring.len() {
+        let mut da = angle(ring[(k + 1) % ring.len()]) - angle(ring[k]);
+        if da > std::f32::consts::PI {
+            da -= std::f32::consts::TAU;
+        }
+        if da < -std::f32::consts::PI {
+            da += std::f32::consts::TAU;
+        }
+        total += da;
+    }
+    total / std::f32::consts::TAU
+}
+
+fn capsule_distance(p: Vec3, a: Vec3, b: Vec3, r: f32) -> f32 {
+    let ab = b - a;
+    let t = ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+    p.distance(a + ab * t) - r
+}
+
+fn swing(max_substeps: u32) -> (usize, usize) {
+    let (around, rings, radius, h, bone_r) = (16, 25, 0.05, 0.004, 0.03);
+    let mesh = tube(around, rings, radius, -0.1, 0.3);
+    let system = springs(&mesh);
+    let n = mesh.positions().len();
+    let pinned: Vec<bool> = mesh.positions().iter().map(|p| p.x < -0.099).collect();
+    // The bone sticks out of the tube, so the tube cannot just slide off its end.
+    let (a, b) = (Vec3::ZERO, Vec3::new(0.45, 0.0, 0.0));
+    let config = ContactConfig {
+        thickness_m: h,
+        max_substeps,
+        ..ContactConfig::DEFAULT
+    };
+    let mut contact = SkinCollision::new(n, config).unwrap();
+    let bone = contact.add_collider(ColliderMesh::capsule(a, b, bone_r).unwrap());
+    let loads = Loads {
+        pinned: Some(&pinned),
+        ..Default::default()
+    };
+    let mut x = mesh.positions().to_vec();
+    let (mut inside, mut escaped) = (0, 0);
+    for step in 1..=4 {
+        // 0.3 rad per frame: the tube's end moves 0.09 m, almost twice the tube radius.
+        let q = Quat::from_rotation_z(0.3 * step as f32);
+        let pose = Pose::from_rotation(q);
+        contact.collider_mut(bone).unwrap().set_pose(pose).unwrap();
+        frame(&mut contact, &system, &mut x, &loads, 10);
+        let (wa, wb) = (pose.transform_point(a), pose.transform_point(b));
+        inside += x
+            .iter()
+            .filter(|p| capsule_distance(**p, wa, wb, bone_r) < h - 1e-5)
+            .count();
+        // Rings over the bone must still wrap around it.
+        for j in 5..rings as usize {
+            let ring = &x[j * around as usize..(j + 1) * around as usize];
+            let axis = (wb - wa).normalize();
+            if winding(ring, wa, axis).abs() < 0.5 {
+                escaped += 1;
+            }
+        }
+    }
+    (inside, escaped)
+}
+
+#[test]
+fn fast_swinging_bone_stays_inside_the_skin_tube() {
+    let (inside, escaped) = swing(256);
+    assert_eq!(inside, 0);
+    assert_eq!(escaped, 0, "the bone tunnelled out of {escaped} rings");
+}
+
+#[test]
+fn without_substeps_the_fast_bone_tunnels() {
+    // Guards the test above: the same motion with one substep does tunnel.
+    let (_, escaped) = swing(1);
+    assert!(escaped > 0);
+}
+
+#[test]
+fn crease_between_two_capsules_leaves_no_vertex_inside() {
+    let (r, h) = (0.03, 0.01);
+    // Two overlapping parallel bones: a V-shaped crease along y between them.
+    let (a0, a1) = (
+        Vec3::new(-0.025, -0.3, -0.04),
+        Vec3::new(-0.025, 0.3, -0.04),
+    );
+    let (b0, b1) = (Vec3::new(0.025, -0.3, -0.04), Vec3::new(0.025, 0.3, -0.04));
+    let mesh = sheet(25, 0.4, 0.0);
+    let system = springs(&mesh);
+    let n = mesh.positions().len();
+    let pinned: Vec<bool> = mesh
+        .positions()
+        .iter()
+        .map(|p| p.x.abs() > 0.199 || p.y.abs() > 0.199)
+        .collect();
+    // Pressed down into the groove.
+    let forces = vec![Vec3::new(0.0, 0.0, -2.0); n];
+    let loads = Loads {
+        pinned: Some(&pinned),
+        forces: Some(&forces),
+        ..Default::default()
+    };
+    let config = ContactConfig {
+        thickness_m: h,
+        ..ContactConfig::DEFAULT
+    };
+    let mut contact = SkinCollision::new(n, config).unwrap();
+    contact.add_collider(ColliderMesh::capsule(a0, a1, r).unwrap());
+    contact.add_collider(ColliderMesh::capsule(b0, b1, r).unwrap());
+    let mut x = mesh.positions().to_vec();
+    contact.advance_frame(&mut x).unwrap();
+    system
+        .relax_projected(&mut x, &loads, &budget(500), Some(&mut contact))
+        .unwrap();
+    assert!(contact.diagnostics().unresolved.is_empty());
+    let mut touching = 0;
+    for (i, p) in x.iter().enumerate() {
+        let da = capsule_distance(*p, a0, a1, r);
+        let db = capsule_distance(*p, b0, b1, r);
+        assert!(da > h - 1e-5 && db > h - 1e-5, "vertex {i}: {da}, {db}");
+        if da < 1.1 * h || db < 1.1 * h {
+            touching += 1;
+        }
+    }
+    assert!(touching > 20, "{touching}");
+
+    // Points dropped into the notch: pushed out of one bone into the other and back, they must
+    // end on the feasible side of both, at the thickness from one, near the notch's apex where
+    // both distances are the thickness: x = 0, z = −0.04 + √((r + h)² − 0.025²).
+    let z_star = -0.04 + ((r + h) * (r + h) - 0.025f32 * 0.025).sqrt();
+    let mut notch: Vec<Vec3> = (0..40)
+        .map(|k| {
+            Vec3::new(
+                0.004 * ((k % 7) as f32 - 3.0) / 3.0,
+                -0.2 + 0.01 * k as f32,
+                -0.035 + 0.0006 * k as f32,
+            )
+        })
+        .collect();
+    let mut contact = SkinCollision::new(notch.len(), config).unwrap();
+    contact.add_collider(ColliderMesh::capsule(a0, a1, r).unwrap());
+    contact.add_collider(ColliderMesh::capsule(b0, b1, r).unwrap());
+    contact.advance_frame(&mut notch).unwrap();
+    assert!(contact.diagnostics().unresolved.is_empty());
+    for (k, p) in notch.iter().enumerate() {
+        let da = capsule_distance(*p, a0, a1, r);
+        let db = capsule_distance(*p, b0, b1, r);
+        assert!(da > h - 1e-5 && db > h - 1e-5, "point {k}: {da}, {db}");
+        assert!((da.min(db) - h).abs() < 1e-4, "point {k}: {da}, {db}");
+        assert!(
+            p.x.abs() < 3e-3 && (p.z - z_star).abs() < 2e-3,
+            "point {k} at {p}, not in the crease at z {z_star}"
+        );
+    }
+}
+
+#[test]
+fn impossible_slot_is_reported_not_oscillating() {
+    // Two balls whose surfaces are half a thickness apart: no point between them is at the
+    // thickness from both, and the symmetric vertex is pushed back and forth along x.
+    let h = 0.01;
+    let gap = 0.5 * h;
+    let mut contact = SkinCollision::new(
+        1,
+        ContactConfig {
+            thickness_m: h,
+            ..ContactConfig::DEFAULT
+        },
+    )
+    .unwrap();
+    for side in [-1.0, 1.0] {
+        contact.add_collider(
+            ColliderMesh::ball(1.0)
+                .unwrap()
+                .with_pose(Pose::from_translation(Vec3::X * side * (1.0 + gap / 2.0))),
+        );
+    }
+    let mut x = vec![Vec3::ZERO];
+    let d = contact.advance_frame(&mut x).unwrap();
+    assert_eq!(d.unresolved, vec![0]);
+    let first = x[0];
+    assert!(first.is_finite());
+    // Deterministic: the same answer again from the same start.
+    let mut y = vec![Vec3::ZERO];
+    contact.clear_cache();
+    contact.advance_frame(&mut y).unwrap();
+    assert_eq!(first, y[0]);
+}
+
+#[test]
+fn per_vertex_thickness_and_results_independent_of_thread_count() {
+    let (v, t) = blob(16, 24);
+    let mut rng = Lcg(3);
+    let n = 3000;
+    let points: Vec<Vec3> = (0..n).map(|_| rng.point(0.35)).collect();
+    let thickness: Vec<f32> = (0..n).map(|i| 0.002 + 0.01 * (i % 5) as f32).collect();
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut c = SkinCollision::new(n, ContactConfig::DEFAULT)
+                .unwrap()
+                .with_thickness(&thickness)
+                .unwrap();
+            c.add_collider(ColliderMesh::from_mesh(v.clone(), t.clone()).unwrap());
+            let mut x = points.clone();
+            c.advance_frame(&mut x).unwrap();
+            (x, c.diagnostics().clone())
+        })
+    };
+    let (one, d1) = run(1);
+    let (two, d2) = run(2);
+    assert_eq!(one, two);
+    assert_eq!(d1, d2);
+    let oriented = ParryMesh::with_flags(v, t, TriMeshFlags::ORIENTED).unwrap();
+    for (i, p) in one.iter().enumerate() {
+        let proj = oriented.project_point(&Pose::IDENTITY, *p, false);
+        assert!(!proj.is_inside, "vertex {i}");
+        assert!(proj.point.distance(*p) > thickness[i] - 1e-5, "vertex {i}");
+    }
+    assert!(
+        SkinCollision::new(2, ContactConfig::DEFAULT)
+            .unwrap()
+            .set_thickness(&[0.1, f32::NAN])
+            .unwrap_err()
+            .to_string()
+            .contains("vertex 1")
+    );
+}
