@@ -1,4 +1,4 @@
-//! Mesh and load files (OBJ via tobj, JSON meshes, the loads JSON) and atomic writes.
+//! Mesh and load files (OBJ via obj-rs, JSON meshes, the loads JSON) and atomic writes.
 //!
 //! # The loads file
 //!
@@ -109,7 +109,8 @@ pub struct JsonMesh {
     pub tetrahedra: Option<Vec<[u32; 4]>>,
 }
 
-/// Reads a mesh from `.obj` (all objects merged, in file order, via tobj) or `.json`
+/// Reads a mesh from `.obj` (all objects merged, vertices in file order, polygons fanned into
+/// triangles, via obj-rs) or `.json`
 /// ([`JsonMesh`]).
 pub fn read_mesh(path: &Path) -> Result<MeshFile, IoError> {
     let mesh_err = |source| IoError::Mesh {
@@ -118,40 +119,34 @@ pub fn read_mesh(path: &Path) -> Result<MeshFile, IoError> {
     };
     match extension(path).as_deref() {
         Some("obj") => {
-            let (models, _) = tobj::load_obj(
-                path,
-                &tobj::LoadOptions {
-                    triangulate: true,
-                    single_index: false,
-                    ..Default::default()
-                },
-            )
-            .map_err(|e| match e {
-                tobj::LoadError::OpenFileFailed => IoError::File {
-                    path: path.to_path_buf(),
-                    source: std::io::Error::new(std::io::ErrorKind::NotFound, "cannot open file"),
-                },
-                other => IoError::Obj {
-                    path: path.to_path_buf(),
-                    message: other.to_string(),
-                },
+            let file = std::fs::File::open(path).map_err(|source| IoError::File {
+                path: path.to_path_buf(),
+                source,
             })?;
-            let mut positions = Vec::new();
-            let mut triangles = Vec::new();
-            for m in models {
-                let base = positions.len() as u32;
-                positions.extend(
-                    m.mesh
-                        .positions
-                        .chunks_exact(3)
-                        .map(|p| Vec3::new(p[0], p[1], p[2])),
-                );
-                triangles.extend(
-                    m.mesh
-                        .indices
-                        .chunks_exact(3)
-                        .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
-                );
+            let raw =
+                obj::raw::parse_obj(std::io::BufReader::new(file)).map_err(|e| IoError::Obj {
+                    path: path.to_path_buf(),
+                    message: e.to_string(),
+                })?;
+            // Vertices stay in file order (the loads file indexes them); polygons are split
+            // into triangle fans.
+            let positions: Vec<Vec3> = raw
+                .positions
+                .iter()
+                .map(|&(x, y, z, _)| Vec3::new(x, y, z))
+                .collect();
+            let mut triangles = Vec::with_capacity(raw.polygons.len());
+            for polygon in &raw.polygons {
+                let corners: Vec<usize> = match polygon {
+                    obj::raw::object::Polygon::P(v) => v.clone(),
+                    obj::raw::object::Polygon::PT(v) => v.iter().map(|c| c.0).collect(),
+                    obj::raw::object::Polygon::PN(v) => v.iter().map(|c| c.0).collect(),
+                    obj::raw::object::Polygon::PTN(v) => v.iter().map(|c| c.0).collect(),
+                };
+                for i in 1..corners.len().saturating_sub(1) {
+                    let t = [corners[0], corners[i], corners[i + 1]];
+                    triangles.push(t.map(|v| u32::try_from(v).unwrap_or(u32::MAX)));
+                }
             }
             Ok(MeshFile::Surface(
                 TriMesh::new(positions, triangles).map_err(mesh_err)?,
@@ -335,7 +330,7 @@ mod tests {
     }
 
     #[test]
-    fn obj_round_trips_through_tobj() {
+    fn obj_round_trips_in_file_order() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("m.obj");
         let p = vec![
@@ -349,6 +344,30 @@ mod tests {
         };
         assert_eq!(m.positions(), &p[..]);
         assert_eq!(m.triangles(), &[[0, 1, 2]]);
+    }
+
+    /// Faces that use vertices out of order, and a quad: vertices keep their file order (the
+    /// loads file indexes them), the quad becomes two triangles.
+    #[test]
+    fn obj_keeps_file_vertex_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("q.obj");
+        std::fs::write(
+            &path,
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nf 5 3 2\nf 1 2 3 4\n",
+        )
+        .unwrap();
+        let MeshFile::Surface(m) = read_mesh(&path).unwrap() else {
+            panic!("surface expected")
+        };
+        assert_eq!(m.positions()[4], Vec3::new(2.0, 0.0, 0.0));
+        assert_eq!(m.positions()[2], Vec3::new(1.0, 1.0, 0.0));
+        assert_eq!(m.triangles(), &[[4, 2, 1], [0, 1, 2], [0, 2, 3]]);
+        std::fs::write(&path, "v 0 0 0\nf 1 2 3\n").unwrap();
+        assert!(matches!(
+            read_mesh(&path),
+            Err(IoError::Obj { .. }) | Err(IoError::Mesh { .. })
+        ));
     }
 
     #[test]

@@ -1,6 +1,8 @@
 //! The spring-mesh core against independent answers: the FEM membrane, the linearised spring
 //! mesh, and the exact uniform expansion of Van Gelder's Fig. 4.
 
+mod cli;
+
 use dermis::fem::{solve_linear_springs, solve_membrane};
 use dermis::paper::{
     Fig4Config, deviation_from_uniform_expansion, fig4, graded_hexagon, uniform_traction,

@@ -51,7 +51,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0.25)]
     nu: f32,
     /// Relative residual tolerance.
-    #[arg(long, default_value_t = 1e-5)]
+    #[arg(long, default_value_t = 1e-4)]
     tolerance: f32,
     /// Iteration budget.
     #[arg(long, default_value_t = 10_000)]
