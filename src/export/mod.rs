@@ -43,6 +43,7 @@
 
 mod atomic;
 mod checkpoint;
+mod config;
 mod geometry;
 mod glb;
 mod obj;
@@ -59,6 +60,9 @@ use thiserror::Error;
 
 pub use atomic::{write_atomic, write_atomic_durable};
 pub use checkpoint::{CHECKPOINT_VERSION, Checkpoint, CheckpointArray};
+pub use config::{
+    AnchorConfig, ContactSettings, ExportConfig, MaterialConfig, OutputConfig, SolverConfig,
+};
 pub use geometry::{StrainColorMap, StrainMeasure, vertex_normals, vertex_strain};
 pub use glb::GlbSink;
 pub use obj::ObjSink;
