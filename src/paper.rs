@@ -459,3 +459,75 @@ mod tests {
         assert!(deviation_from_uniform_expansion(&rest, &bent).0 > 0.01);
     }
 }
+
+#[cfg(test)]
+mod regular_mesh_tests {
+    use super::*;
+
+    /// An independent check of the whole chain (stiffness, loads, relaxation, deviation): on a
+    /// mesh of equilateral triangles every area-len2 spring has the same stiffness and every
+    /// interior vertex sees six symmetric neighbours, so uniform traction must give a uniform
+    /// expansion, up to solver precision.
+    #[test]
+    fn equilateral_hexagon_expands_uniformly_with_area_len2() {
+        let n = 6i32;
+        let h = 1.0 / n as f32;
+        let mut index = std::collections::BTreeMap::new();
+        let mut p = Vec::new();
+        for j in -n..=n {
+            for i in -n..=n {
+                // Axial coordinates of a hexagon of radius n.
+                if (i + j).abs() > n {
+                    continue;
+                }
+                index.insert((i, j), p.len() as u32);
+                p.push(Vec3::new(
+                    h * (i as f32 + 0.5 * j as f32),
+                    h * 0.75f32.sqrt() * j as f32,
+                    0.0,
+                ));
+            }
+        }
+        let mut t = Vec::new();
+        for (&(i, j), &a) in &index {
+            if let (Some(&b), Some(&c)) = (index.get(&(i + 1, j)), index.get(&(i, j + 1))) {
+                t.push([a, b, c]);
+            }
+            if let (Some(&b), Some(&c)) = (index.get(&(i + 1, j)), index.get(&(i + 1, j - 1))) {
+                t.push([a, c, b]);
+            }
+        }
+        let mesh = TriMesh::new(p, t).unwrap();
+        let f = uniform_traction(&mesh, 1.0);
+        let k = StiffnessRule::AreaOverLengthSquared
+            .edge_stiffness(&mesh, &Modulus::Uniform(1000.0))
+            .unwrap();
+        let system = SpringSystem::from_mesh(&mesh, &k).unwrap();
+        let mut x = mesh.positions().to_vec();
+        let loads = Loads {
+            forces: Some(&f),
+            ..Default::default()
+        };
+        system
+            .relax(
+                &mut x,
+                &loads,
+                &RelaxConfig {
+                    tolerance: 1e-6,
+                    max_iterations: 5000,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+        let d: Vec<DVec3> = x
+            .iter()
+            .zip(mesh.positions())
+            .map(|(x, p)| x.as_dvec3() - p.as_dvec3())
+            .collect();
+        let (dev, s) = deviation_from_uniform_expansion(mesh.positions(), &d);
+        assert!(dev < 1e-3, "deviation {dev}");
+        // An equilateral spring lattice is a membrane with ν = 1/3: strain t (1 − ν) / E2 with
+        // E2 the Eq. 29 modulus, i.e. 2/3 of t / E2.
+        assert!((s / (2.0 / 3.0 * 1e-3) - 1.0).abs() < 0.01, "stretch {s}");
+    }
+}
