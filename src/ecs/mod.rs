@@ -5,10 +5,12 @@
 //! feature flags and an FAQ.
 
 mod components;
+mod scene;
 mod spawn;
 mod systems;
 
 pub use components::*;
+pub use scene::*;
 pub use spawn::*;
 pub use systems::*;
 
@@ -16,6 +18,7 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::{LogLevel, ScheduleBuildSettings, ScheduleLabel};
 use thiserror::Error;
 
+use crate::collision::CollisionError;
 use crate::mesh::TopologyError;
 use crate::solver::SolverError;
 use crate::stiffness::StiffnessError;
@@ -64,6 +67,9 @@ pub enum SkinError {
     /// despawned).
     #[error("entity {0} is not a skin")]
     NotASkin(Entity),
+    /// The contact set-up rejected the frame (wrong vertex count, non-finite positions).
+    #[error(transparent)]
+    Collision(#[from] CollisionError),
 }
 
 /// The phases of one dermis frame, in order. [`DermisPlugin`] chains them; put your own systems
@@ -139,6 +145,7 @@ impl DermisPlugin {
                 .in_set(DermisSystems::Stiffness),
             relax_skins.in_set(DermisSystems::Relax),
         ));
+        scene::configure(schedule);
     }
 
     /// Inserts the resources the systems read, keeping any already present:
