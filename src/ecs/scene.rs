@@ -1,38 +1,4 @@
 //! glTF scenes in the ECS: skins and colliders spawned from a [`Scene`], its clip played on a fixed clock.
-//!
-//! [`spawn_scene`] turns every primitive of a mesh with [`Role::Skin`] into a skin entity and
-//! every muscle or bone primitive into a collider entity (or, for a model whose only skinned
-//! mesh is the skin, the scene's fitted [`Capsule`]s). The [`SceneAnimation`] resource holds the
-//! scene and its [`SceneClock`]; the systems added by [`DermisPlugin`](super::DermisPlugin)
-//! advance it by a fixed timestep ([`advance_scene_clock`], [`sample_scene`] in
-//! [`DermisSystems::Animate`](super::DermisSystems::Animate)), skin the anchors and the colliders
-//! ([`deform_scene`] in [`DermisSystems::Deform`](super::DermisSystems::Deform)) and copy the
-//! colliders into every skin's [`SkinContact`] ([`refresh_colliders`] in
-//! [`DermisSystems::Colliders`](super::DermisSystems::Colliders)).
-//!
-//! ## Welding
-//!
-//! glTF primitives often repeat a vertex along UV or normal seams. The spring mesh of a skin
-//! (and the triangle mesh of a collider) welds vertices whose positions are bit-for-bit equal,
-//! keeping the first occurrence; [`SceneSkin`] keeps the map both ways, so
-//! [`scene_skin_positions`] and [`collider_geometry`] answer in the primitive's own vertex
-//! order (what `dermis pose` writes). Triangles that collapse under the weld are dropped.
-//!
-//! ```
-//! use bevy_ecs::prelude::*;
-//! use dermis::ecs::{DermisPlugin, SceneOptions, spawn_scene, scene_skin_positions};
-//! use dermis::gltf::{LoadOptions, Scene};
-//!
-//! let bytes = dermis::gltf::arm::build_arm_glb();
-//! let scene = Scene::from_slice(&bytes, None, &LoadOptions::default()).unwrap();
-//! let mut world = World::new();
-//! let mut schedule = DermisPlugin.build_schedule(&mut world);
-//! let spawned = spawn_scene(&mut world, &scene, &SceneOptions::default()).unwrap();
-//! assert_eq!(spawned.skins.len(), 1);
-//! schedule.run(&mut world); // one frame of 1/30 s
-//! let skin = scene_skin_positions(&world, spawned.skins[0].entity).unwrap();
-//! assert_eq!(skin.len(), scene.meshes[4].primitives[0].positions.len());
-//! ```
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -351,7 +317,13 @@ pub struct SceneMesh {
     pub name: String,
 }
 
-/// Vertex welding of a primitive: see the [module docs](self).
+/// Vertex welding of a primitive.
+///
+/// glTF primitives often repeat a vertex along UV or normal seams. The spring mesh of a skin
+/// (and the triangle mesh of a collider) welds vertices whose positions are bit-for-bit equal,
+/// keeping the first occurrence; [`SceneSkin`] keeps the map both ways, so
+/// [`scene_skin_positions`] and [`collider_geometry`] answer in the primitive's own vertex
+/// order (what `dermis pose` writes). Triangles that collapse under the weld are dropped.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct VertexWeld {
     /// Welded vertex of every primitive vertex.
@@ -554,6 +526,31 @@ fn rigid_matrix(pose: &ScenePose, node: usize, joint: Option<(u32, u32)>) -> Mat
 /// everything else is re-skinned and refitted every frame. A scene without muscles and bones
 /// uses its fitted capsules as bones. With [`SceneOptions::contact`], every skin gets a
 /// [`SkinContact`] holding all colliders.
+///
+/// One skin entity per primitive of a mesh with [`Role::Skin`] and one collider entity per
+/// muscle or bone primitive (or fitted [`Capsule`]). The [`SceneAnimation`] resource holds the
+/// scene and its [`SceneClock`]; the systems added by [`DermisPlugin`](super::DermisPlugin)
+/// advance it by a fixed timestep ([`advance_scene_clock`], [`sample_scene`] in
+/// [`DermisSystems::Animate`](super::DermisSystems::Animate)), skin the anchors and the colliders
+/// ([`deform_scene`] in [`DermisSystems::Deform`](super::DermisSystems::Deform)) and copy the
+/// colliders into every skin's [`SkinContact`] ([`refresh_colliders`] in
+/// [`DermisSystems::Colliders`](super::DermisSystems::Colliders)).
+///
+/// ```
+/// use bevy_ecs::prelude::*;
+/// use dermis::ecs::{DermisPlugin, SceneOptions, spawn_scene, scene_skin_positions};
+/// use dermis::gltf::{LoadOptions, Scene};
+///
+/// let bytes = dermis::gltf::arm::build_arm_glb();
+/// let scene = Scene::from_slice(&bytes, None, &LoadOptions::default()).unwrap();
+/// let mut world = World::new();
+/// let mut schedule = DermisPlugin.build_schedule(&mut world);
+/// let spawned = spawn_scene(&mut world, &scene, &SceneOptions::default()).unwrap();
+/// assert_eq!(spawned.skins.len(), 1);
+/// schedule.run(&mut world); // one frame of 1/30 s
+/// let skin = scene_skin_positions(&world, spawned.skins[0].entity).unwrap();
+/// assert_eq!(skin.len(), scene.meshes[4].primitives[0].positions.len());
+/// ```
 pub fn spawn_scene(
     world: &mut World,
     scene: &Scene,
@@ -711,7 +708,7 @@ pub fn spawn_scene(
         // Capsules of zero radius (a bone whose vertices lie on its axis) are skipped.
         for (i, capsule) in scene.capsules.iter().enumerate() {
             let Some(s) = skin_index else { break };
-            if !(capsule.radius_m > 0.0) {
+            if capsule.radius_m.is_nan() || capsule.radius_m <= 0.0 {
                 continue;
             }
             let node_name = scene
