@@ -1148,3 +1148,42 @@ pub fn scene_diagnostics(world: &World) -> Result<SceneFrameDiagnostics, SceneEr
         skins: skins.into_iter().map(|s| s.2).collect(),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weld_merges_seam_duplicates_and_maps_back() {
+        // A quad whose diagonal vertices are duplicated (as at a UV seam).
+        let p = vec![
+            Vec3::ZERO,
+            Vec3::X,
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::ZERO,
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::Y,
+        ];
+        let weld = VertexWeld::new(&p);
+        assert_eq!(weld.primitive_to_welded, vec![0, 1, 2, 0, 2, 3]);
+        assert_eq!(weld.welded_to_primitive, vec![0, 1, 2, 5]);
+        assert_eq!(weld.scatter(&weld.gather(&p)), p);
+        // The second triangle is re-indexed; a triangle collapsing onto a seam is dropped.
+        let t = weld.triangles(&[[0, 1, 2], [3, 4, 5], [0, 3, 1]]);
+        assert_eq!(t, vec![[0, 1, 2], [0, 2, 3]]);
+    }
+
+    #[test]
+    fn the_clock_holds_or_wraps_at_the_clip_end() {
+        let mut clock = SceneClock {
+            dt_s: 0.25,
+            frame: 10,
+            looping: false,
+            duration_s: 2.0,
+        };
+        assert_eq!(clock.time_s(), 2.5);
+        assert_eq!(clock.sample_time_s(), 2.0);
+        clock.looping = true;
+        assert_eq!(clock.sample_time_s(), 0.5);
+    }
+}

@@ -376,8 +376,10 @@ fn relax_one(
 
 /// One frame of a skin in contact: the collision frame plan, then per substep a contact pass
 /// and a relaxation with the contact as the projection. The iteration budget of `config` is
-/// shared by the substeps (at least one iteration each); the report sums the iterations and
-/// keeps the last substep's residual, energy and stop reason.
+/// shared by the substeps: half of it spread over the intermediate ones (at least one iteration
+/// each; they only hold the skin together while the colliders sweep through), the rest for the
+/// last one, whose result is the frame's. The report sums the iterations and keeps the last
+/// substep's residual, energy and stop reason.
 ///
 /// The contact cache is cleared first, so the frame depends only on the skin positions and the
 /// colliders' previous and current states (what [`crate::ecs::capture_state`] restores); the
@@ -392,14 +394,23 @@ fn relax_with_contact(
     let collision = &mut contact.collision;
     collision.clear_cache();
     let plan = collision.begin_frame(x)?;
-    let per_substep = config.max_iterations.div_ceil(plan.substeps.max(1)).max(1);
-    let sub_config = RelaxConfig {
-        max_iterations: per_substep,
-        ..*config
-    };
+    let substeps = plan.substeps.max(1);
+    let intermediate = (config.max_iterations / (2 * substeps)).max(1);
+    let last = config
+        .max_iterations
+        .saturating_sub(intermediate * (substeps - 1))
+        .max(1);
     let mut total: Option<RelaxReport> = None;
-    for _ in 0..plan.substeps {
+    for s in 0..plan.substeps {
         collision.substep(x)?;
+        let sub_config = RelaxConfig {
+            max_iterations: if s + 1 == substeps {
+                last
+            } else {
+                intermediate
+            },
+            ..*config
+        };
         let report = system.relax_projected(x, loads, &sub_config, Some(&mut *collision))?;
         let iterations = total.as_ref().map_or(0, |t| t.iterations) + report.iterations;
         total = Some(RelaxReport {
