@@ -7,7 +7,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use bevy_ecs::prelude::*;
-use dermis::ecs::{DermisPlugin, SceneOptions, scene_diagnostics, spawn_scene};
+use dermis::ecs::{
+    DermisPlugin, SceneOptions, scene_diagnostics, scene_skin_positions, spawn_scene,
+};
 use dermis::gltf::{LoadOptions, load};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -64,5 +66,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "{frames} frames, mean {:.2} ms per frame",
         total_ms / frames as f64
     );
+    // FNV-1a over the bits of every skin position: equal for any RAYON_NUM_THREADS.
+    let mut hash = 0xcbf2_9ce4_8422_2325u64;
+    for skin in &spawned.skins {
+        for p in scene_skin_positions(&world, skin.entity)? {
+            for b in p.to_array().map(f32::to_bits) {
+                hash = (hash ^ u64::from(b)).wrapping_mul(0x100_0000_01b3);
+            }
+        }
+    }
+    println!("skin hash {hash:016x}");
     Ok(())
 }

@@ -383,6 +383,12 @@ pub struct RelaxDiagnostics {
 /// With this component, [`relax_skins`](super::relax_skins) runs the collision frame plan: per
 /// substep a contact pass, then a relaxation projected onto the colliders, the frame's
 /// iteration budget shared by the substeps.
+///
+/// Every frame starts from a cleared contact cache ([`SkinCollision::clear_cache`]), so a frame
+/// depends only on the skin positions and the colliders' previous and current states, which
+/// makes checkpoints exact; the cache still serves the many passes within a frame. Friction
+/// therefore anchors a vertex where it first touches a collider within the frame: it resists
+/// slip during a frame, not across frames.
 #[derive(Component, Debug, Clone)]
 pub struct SkinContact {
     /// The contact state.

@@ -196,7 +196,7 @@ fn with_collision_no_skin_vertex_ends_inside_a_muscle_or_bone() {
 fn capture_restore_continues_bit_for_bit() {
     let scene = arm();
     let options = thick_contact();
-    let (n, m) = (3, 3);
+    let (n, m) = (27, 3);
     let (mut direct, mut schedule, spawned) = world_with(&scene, &options);
     run(&mut direct, &mut schedule, n);
     let state = capture_state(&direct).unwrap();
