@@ -8,7 +8,7 @@ use dermis::ecs::{
     capture_state, collider_geometry, restore_state, scene_diagnostics, scene_skin_positions,
     spawn_scene,
 };
-use dermis::gltf::{GltfError, LoadOptions, Role, Scene, fit_capsules, load};
+use dermis::gltf::{GltfError, LoadOptions, Role, Scene, load};
 use glam::Vec3;
 use parry3d::math::Pose;
 use parry3d::query::PointQuery;
@@ -256,28 +256,61 @@ fn one_and_two_threads_give_identical_skins() {
     assert_eq!(hash_after(1, 3), hash_after(2, 3));
 }
 
-#[test]
-fn a_model_with_only_a_skinned_mesh_gets_capsule_bones() {
-    let mut scene = arm();
-    // Keep only the skin: the other nodes draw nothing, and the capsules are fitted as the
-    // loader fits them for a single skinned mesh.
-    for node in &mut scene.nodes {
-        if node
-            .mesh
-            .is_some_and(|m| scene.meshes[m as usize].role != Some(Role::Skin))
-        {
-            node.mesh = None;
+/// The arm with only its skin left, unnamed and without extras: a rigged character as any tool
+/// exports it. The glTF JSON chunk of the `.glb` is rewritten; the binary chunk is kept.
+fn skin_only_arm() -> Scene {
+    let glb = dermis::gltf::arm::build_arm_glb();
+    let u32_at = |i: usize| u32::from_le_bytes(glb[i..i + 4].try_into().unwrap()) as usize;
+    let json_len = u32_at(12);
+    let mut json: serde_json::Value = serde_json::from_slice(&glb[20..20 + json_len]).unwrap();
+    let skin_mesh = json["meshes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .position(|m| m["name"] == "arm_skin")
+        .unwrap();
+    let mut mesh = json["meshes"][skin_mesh].clone();
+    mesh.as_object_mut().unwrap().remove("extras");
+    mesh["name"] = "arm".into();
+    json["meshes"] = serde_json::json!([mesh]);
+    for node in json["nodes"].as_array_mut().unwrap() {
+        let node = node.as_object_mut().unwrap();
+        node.remove("extras");
+        match node.get("mesh").and_then(serde_json::Value::as_u64) {
+            Some(m) if m as usize == skin_mesh => {
+                node.insert("mesh".into(), 0.into());
+                node.insert("name".into(), "arm".into());
+            }
+            Some(_) => {
+                node.remove("mesh");
+                node.remove("skin");
+            }
+            None => {}
         }
     }
-    let skin_node = scene.nodes.iter().find(|n| n.mesh.is_some()).unwrap();
-    let skin_mesh = &scene.meshes[skin_node.mesh.unwrap() as usize];
-    scene.capsules = fit_capsules(
-        &scene.hierarchy,
-        &scene.skins[skin_node.skin.unwrap() as usize],
-        skin_mesh,
-    );
+    let mut text = serde_json::to_vec(&json).unwrap();
+    while text.len() % 4 != 0 {
+        text.push(b' ');
+    }
+    let bin = &glb[20 + json_len..];
+    let mut out = Vec::new();
+    out.extend_from_slice(&glb[..8]);
+    out.extend_from_slice(&((12 + 8 + text.len() + bin.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&text);
+    out.extend_from_slice(bin);
+    Scene::from_slice(&out, None, &LoadOptions::default()).unwrap()
+}
+
+#[test]
+fn a_model_with_only_a_skinned_mesh_gets_capsule_bones() {
+    let scene = skin_only_arm();
+    assert_eq!(scene.meshes.len(), 1);
+    assert_eq!(scene.meshes[0].role, Some(Role::Skin));
     assert!(!scene.capsules.is_empty());
     let (mut world, mut schedule, spawned) = world_with(&scene, &SceneOptions::default());
+    assert_eq!(spawned.skins.len(), 1);
     assert_eq!(spawned.colliders.len(), scene.capsules.len());
     assert!(
         spawned
@@ -285,21 +318,36 @@ fn a_model_with_only_a_skinned_mesh_gets_capsule_bones() {
             .iter()
             .all(|c| c.capsule && c.tissue == Tissue::Bone)
     );
-    run(&mut world, &mut schedule, 2);
+    run(&mut world, &mut schedule, 20);
     let d = scene_diagnostics(&world).unwrap();
     assert!(d.skins[0].error.is_none(), "{:?}", d.skins[0].error);
-    // The capsules follow their joints: every skin vertex is outside each capsule's
-    // tessellation (within the thickness), checked by parry.
+    // The capsules follow their joints: a capsule tessellation, posed from its joint, holds the
+    // posed joint position of the bone's start (an independent answer from the scene's pose).
+    let pose = scene.pose(Some(0), d.time_s);
+    assert!(!pose.primitives.is_empty());
     let skin = scene_skin_positions(&world, spawned.skins[0].entity).unwrap();
-    for c in &spawned.colliders {
+    let globals = scene
+        .hierarchy
+        .global_transforms(&scene.sample(Some(0), d.time_s).locals);
+    for (c, capsule) in spawned.colliders.iter().zip(&scene.capsules) {
         let (v, t) = collider_geometry(&world, c.entity).unwrap();
         let mesh = ParryMesh::with_flags(v, t, TriMeshFlags::ORIENTED).unwrap();
+        let joint = globals[capsule.node as usize].w_axis.truncate();
+        assert!(
+            mesh.contains_point(&Pose::IDENTITY, joint),
+            "{} does not hold its joint at {joint}",
+            c.name
+        );
+        // No skin vertex inside (the tessellation lies within the exact capsule).
         let worst = skin
             .iter()
             .map(|p| depth_inside(&mesh, *p))
             .fold(0.0f32, f32::max);
-        // The tessellation lies inside the exact capsule; allow its chord error.
-        assert!(worst < 2e-3, "{}: {worst} m inside", c.name);
+        assert!(
+            worst < 1e-4,
+            "{}: a skin vertex is {worst} m inside",
+            c.name
+        );
     }
 }
 
