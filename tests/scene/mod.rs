@@ -289,7 +289,7 @@ fn skin_only_arm() -> Scene {
         }
     }
     let mut text = serde_json::to_vec(&json).unwrap();
-    while text.len() % 4 != 0 {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
     let bin = &glb[20 + json_len..];
