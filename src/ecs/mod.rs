@@ -2,7 +2,9 @@
 //! [`DermisPlugin`].
 //!
 //! The [crate-level guide](crate) walks through a standalone `World`, the frame pipeline, the
-//! feature flags and an FAQ.
+//! feature flags and an FAQ. [`spawn_scene`] turns a glTF [`Scene`](crate::gltf::Scene) into
+//! skins and colliders played on a fixed clock; [`capture_state`] and [`restore_state`]
+//! checkpoint it.
 
 mod components;
 mod scene;

@@ -113,6 +113,20 @@ fn anchors_at_mid_clip_are_the_posed_skin_of_dermis_pose() {
         moved = moved.max(p.distance(bind[v]));
     }
     assert!(moved > 0.05, "the elbow bent: largest motion {moved} m");
+    // Colliders too: deforming muscles and rigidly posed bones, in the primitive's order.
+    for c in &spawned.colliders {
+        let (v, t) = collider_geometry(&world, c.entity).unwrap();
+        let reference = posed.primitives.iter().find(|p| p.name == c.name).unwrap();
+        assert_eq!(t, reference.triangles, "{}", c.name);
+        assert_eq!(v.len(), reference.positions.len(), "{}", c.name);
+        for (i, (a, b)) in v.iter().zip(&reference.positions).enumerate() {
+            assert!(
+                (*a - *b).length() < 1e-5,
+                "{} vertex {i}: {a} vs {b}",
+                c.name
+            );
+        }
+    }
 }
 
 /// Depth of `p` inside a closed mesh (0 outside), by parry's own solid query.
