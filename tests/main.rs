@@ -5,3 +5,4 @@ mod core;
 mod ecs;
 mod export;
 mod gltf;
+mod scene;

@@ -8,6 +8,7 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 use super::SkinError;
+use crate::collision::{ColliderId, ContactDiagnostics, SkinCollision};
 use crate::mesh::{TriMesh, TriMeshTopology};
 use crate::solver::{SpringSystem, StopReason, VertexAnchor};
 use crate::stiffness::{Modulus, StiffnessRule};
@@ -367,6 +368,31 @@ pub struct RelaxDiagnostics {
     /// Why the last solve failed for a reason other than a quarantine (cleared by the next
     /// successful solve).
     pub solve_error: Option<SkinError>,
+    /// What the contact passes did this frame, for a skin with a [`SkinContact`] (frame plan,
+    /// substeps, unresolved vertices, query counters).
+    pub contact: Option<ContactDiagnostics>,
     /// Whether anchors, loads and a settings override were present at the last solve.
     pub(crate) present: [bool; 3],
+}
+
+/// The contact of a skin with its colliders: a [`SkinCollision`] (the projection
+/// [`relax_skins`](super::relax_skins) passes to the solver) and, for each of its colliders, the
+/// collider entity that drives it ([`refresh_colliders`](super::refresh_colliders) copies the
+/// entity's [`ColliderState`](super::ColliderState) into it every frame).
+///
+/// With this component, [`relax_skins`](super::relax_skins) runs the collision frame plan: per
+/// substep a contact pass, then a relaxation projected onto the colliders, the frame's
+/// iteration budget shared by the substeps.
+///
+/// Every frame starts from a cleared contact cache ([`SkinCollision::clear_cache`]), so a frame
+/// depends only on the skin positions and the colliders' previous and current states, which
+/// makes checkpoints exact; the cache still serves the many passes within a frame. Friction
+/// therefore anchors a vertex where it first touches a collider within the frame: it resists
+/// slip during a frame, not across frames.
+#[derive(Component, Debug, Clone)]
+pub struct SkinContact {
+    /// The contact state.
+    pub collision: SkinCollision,
+    /// `(collider entity, its id in collision)`, in resolution order.
+    pub colliders: Vec<(Entity, ColliderId)>,
 }

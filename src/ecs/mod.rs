@@ -2,13 +2,17 @@
 //! [`DermisPlugin`].
 //!
 //! The [crate-level guide](crate) walks through a standalone `World`, the frame pipeline, the
-//! feature flags and an FAQ.
+//! feature flags and an FAQ. [`spawn_scene`] turns a glTF [`Scene`](crate::gltf::Scene) into
+//! skins and colliders played on a fixed clock; [`capture_state`] and [`restore_state`]
+//! checkpoint it.
 
 mod components;
+mod scene;
 mod spawn;
 mod systems;
 
 pub use components::*;
+pub use scene::*;
 pub use spawn::*;
 pub use systems::*;
 
@@ -16,6 +20,7 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::{LogLevel, ScheduleBuildSettings, ScheduleLabel};
 use thiserror::Error;
 
+use crate::collision::CollisionError;
 use crate::mesh::TopologyError;
 use crate::solver::SolverError;
 use crate::stiffness::StiffnessError;
@@ -64,6 +69,9 @@ pub enum SkinError {
     /// despawned).
     #[error("entity {0} is not a skin")]
     NotASkin(Entity),
+    /// The contact set-up rejected the frame (wrong vertex count, non-finite positions).
+    #[error(transparent)]
+    Collision(#[from] CollisionError),
 }
 
 /// The phases of one dermis frame, in order. [`DermisPlugin`] chains them; put your own systems
@@ -139,6 +147,7 @@ impl DermisPlugin {
                 .in_set(DermisSystems::Stiffness),
             relax_skins.in_set(DermisSystems::Relax),
         ));
+        scene::configure(schedule);
     }
 
     /// Inserts the resources the systems read, keeping any already present:

@@ -4,8 +4,9 @@ use bevy_ecs::prelude::*;
 use glam::Vec3;
 use rayon::prelude::*;
 
+use super::SkinError;
 use super::components::*;
-use crate::solver::{Loads, RelaxConfig, SolverError, SpringSystem, StopReason};
+use crate::solver::{Loads, RelaxConfig, RelaxReport, SolverError, SpringSystem, StopReason};
 
 /// The strain the characteristic force of a skin is measured at (10 %): see [`force_scale_n`].
 pub const REFERENCE_STRAIN: f32 = 0.1;
@@ -167,6 +168,7 @@ type RelaxItem<'a> = (
     Option<Ref<'a, ExternalLoads>>,
     Option<Ref<'a, RelaxSettings>>,
     Mut<'a, RelaxDiagnostics>,
+    Option<Mut<'a, SkinContact>>,
 );
 
 /// Relaxes every skin to equilibrium under its anchors and loads, warm-started from its current
@@ -198,6 +200,7 @@ pub fn relax_skins(
         Option<Ref<ExternalLoads>>,
         Option<Ref<RelaxSettings>>,
         &mut RelaxDiagnostics,
+        Option<&mut SkinContact>,
     )>,
     mut quarantined: MessageWriter<SkinQuarantined>,
 ) {
@@ -224,8 +227,18 @@ fn relax_one(
     default: &RelaxSettings,
     config_changed: bool,
 ) -> Vec<SkinQuarantined> {
-    let (entity, springs, rest, positions, last_valid, anchors, loads, settings, diagnostics) =
-        item;
+    let (
+        entity,
+        springs,
+        rest,
+        positions,
+        last_valid,
+        anchors,
+        loads,
+        settings,
+        diagnostics,
+        contact,
+    ) = item;
     let diagnostics = &mut **diagnostics;
     diagnostics.frames += 1;
     diagnostics.quarantined.clear();
@@ -319,7 +332,18 @@ fn relax_one(
             .map(|a| &a.0[..]),
     };
     let x = &mut positions.bypass_change_detection().0;
-    match system.relax(x, &solver_loads, &config) {
+    let result = match contact.as_mut() {
+        None => system
+            .relax(x, &solver_loads, &config)
+            .map_err(SkinError::from),
+        Some(contact) => {
+            let contact = contact.bypass_change_detection();
+            let result = relax_with_contact(system, x, &solver_loads, &config, contact);
+            diagnostics.contact = Some(contact.collision.diagnostics().clone());
+            result
+        }
+    };
+    match result {
         Ok(report) => {
             if let Some(v) = first_non_finite(x) {
                 x.copy_from_slice(last_valid);
@@ -337,7 +361,7 @@ fn relax_one(
                 positions.set_changed();
             }
         }
-        Err(SolverError::NonFinite { what, vertex }) => {
+        Err(SkinError::Solver(SolverError::NonFinite { what, vertex })) => {
             let input = match what {
                 "anchor" => NonFiniteInput::Anchor,
                 "force" => NonFiniteInput::Force,
@@ -345,9 +369,59 @@ fn relax_one(
             };
             quarantine(input, vertex, diagnostics);
         }
-        Err(e) => diagnostics.solve_error = Some(e.into()),
+        Err(e) => diagnostics.solve_error = Some(e),
     }
     events
+}
+
+/// One frame of a skin in contact: the collision frame plan, then per substep a contact pass
+/// and a relaxation with the contact as the projection. The iteration budget of `config` is
+/// shared by the substeps: half of it spread over the intermediate ones (at least one iteration
+/// each; they only hold the skin together while the colliders sweep through), the rest for the
+/// last one, whose result is the frame's. The report sums the iterations and keeps the last
+/// substep's residual, energy and stop reason.
+///
+/// The contact cache is cleared first, so the frame depends only on the skin positions and the
+/// colliders' previous and current states (what [`crate::ecs::capture_state`] restores); the
+/// cache still serves every pass within the frame.
+fn relax_with_contact(
+    system: &SpringSystem,
+    x: &mut [Vec3],
+    loads: &Loads<'_>,
+    config: &RelaxConfig,
+    contact: &mut SkinContact,
+) -> Result<RelaxReport, SkinError> {
+    let collision = &mut contact.collision;
+    collision.clear_cache();
+    let plan = collision.begin_frame(x)?;
+    let substeps = plan.substeps.max(1);
+    let intermediate = (config.max_iterations / (2 * substeps)).max(1);
+    let last = config
+        .max_iterations
+        .saturating_sub(intermediate * (substeps - 1))
+        .max(1);
+    let mut total: Option<RelaxReport> = None;
+    for s in 0..plan.substeps {
+        collision.substep(x)?;
+        let sub_config = RelaxConfig {
+            max_iterations: if s + 1 == substeps {
+                last
+            } else {
+                intermediate
+            },
+            ..*config
+        };
+        let report = system.relax_projected(x, loads, &sub_config, Some(&mut *collision))?;
+        let iterations = total.as_ref().map_or(0, |t| t.iterations) + report.iterations;
+        total = Some(RelaxReport {
+            iterations,
+            ..report
+        });
+    }
+    match total {
+        Some(report) => Ok(report),
+        None => Ok(system.relax_projected(x, loads, config, Some(collision))?),
+    }
 }
 
 /// Swaps the [`Messages<SkinQuarantined>`] buffers once a frame. Only used on a standalone
