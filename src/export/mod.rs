@@ -46,6 +46,7 @@ mod checkpoint;
 mod config;
 mod geometry;
 mod glb;
+mod job;
 mod obj;
 mod ply;
 mod text;
@@ -65,6 +66,7 @@ pub use config::{
 };
 pub use geometry::{StrainColorMap, StrainMeasure, vertex_normals, vertex_strain};
 pub use glb::GlbSink;
+pub use job::{ExportJob, ExportJobError, ExportSummary, FrameRange, checkpoint_path, run_export};
 pub use obj::ObjSink;
 pub use ply::PlySink;
 pub use usda::UsdaSink;

@@ -2,6 +2,7 @@
 
 mod bench;
 mod equilibrium;
+mod export;
 mod inspect;
 mod make_arm;
 mod paper;
@@ -21,6 +22,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Play a rigged model's clip, settle the skin every frame, write the frames (glb, obj, ply, usda).
+    Export(export::Args),
     /// Print a glTF model's meshes with roles and quality, skins and clips.
     Inspect(inspect::InspectArgs),
     /// Write every mesh primitive of a glTF model posed at a time (OBJ or PLY, world space).
@@ -42,6 +45,7 @@ type CliResult = Result<(), Box<dyn std::error::Error>>;
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result: CliResult = match cli.command {
+        Command::Export(args) => export::run(args),
         Command::Inspect(args) => inspect::run(args),
         Command::Pose(args) => pose::run(args),
         Command::Equilibrium(args) => equilibrium::run(args),
