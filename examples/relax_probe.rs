@@ -24,7 +24,10 @@ fn main() {
             tolerance: if frames > 1 { 1e-4 } else { 0.0 },
             ..RelaxConfig::DEFAULT
         };
-        let report = work.system.relax(&mut x, &loads, &config).expect("finite inputs");
+        let report = work
+            .system
+            .relax(&mut x, &loads, &config)
+            .expect("finite inputs");
         println!(
             "frame {frame}: {} iterations, residual {:.3e}, energy {:.12e}, {:?}",
             report.iterations, report.residual, report.energy, report.stop

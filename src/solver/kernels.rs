@@ -242,3 +242,30 @@ pub(crate) fn dot(a: &[Vec3], b: &[Vec3]) -> f64 {
         .collect();
     partial.iter().sum()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stretch_matches_the_f64_square_root() {
+        let mut worst = 0.0f64;
+        for i in 0..2000u32 {
+            let t = i as f32;
+            let e = Vec3::new(
+                (t * 0.37).sin() * 0.01,
+                (t * 1.13).cos() * 0.003,
+                (t * 0.71).sin() * 0.02 + 1e-4,
+            );
+            let rest = e.length() * (1.0 + 1e-6 * (t * 0.1).sin());
+            let len = e.length();
+            let exact = e.as_dvec3().length() - rest as f64;
+            let got = stretch64(e.as_dvec3(), len, 1.0 / len, rest);
+            worst = worst.max((got - exact).abs() / len as f64);
+        }
+        // An f32 length alone would be off by up to ~6e-8 of the length.
+        assert!(worst < 1e-13, "relative error {worst}");
+        let zero = stretch64(glam::DVec3::ZERO, 0.0, f32::INFINITY, 0.5);
+        assert_eq!(zero, -0.5);
+    }
+}

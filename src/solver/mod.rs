@@ -488,13 +488,7 @@ impl SpringSystem {
         let mut d = vec![Vec3::ZERO; n];
         let mut trial = vec![Vec3::ZERO; n];
         let mut rz = sums.rzr;
-        let mut slope = update_direction(
-            &mut d,
-            &r,
-            &inv_diag,
-            0.0,
-            &mut scalar_scratch,
-        );
+        let mut slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch);
         let mut iterations = 0;
         let mut stop = StopReason::Budget;
         while iterations < config.max_iterations {
@@ -504,13 +498,7 @@ impl SpringSystem {
             }
             if slope <= 0.0 {
                 // Not a descent direction: restart with steepest (preconditioned) descent.
-                slope = update_direction(
-                    &mut d,
-                    &r,
-                    &inv_diag,
-                    0.0,
-                    &mut scalar_scratch,
-                );
+                slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch);
                 if rz <= 0.0 || slope <= 0.0 {
                     stop = StopReason::Stalled;
                     break;
@@ -570,13 +558,7 @@ impl SpringSystem {
                 ((sums.rzr - sums.rz_old) / rz).max(0.0)
             };
             rz = sums.rzr;
-            slope = update_direction(
-                &mut d,
-                &r,
-                &inv_diag,
-                beta as f32,
-                &mut scalar_scratch,
-            );
+            slope = update_direction(&mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch);
         }
         if stop == StopReason::Budget && converged(r_norm) {
             stop = StopReason::Converged;
