@@ -4,6 +4,8 @@
 //! the cost of one spring evaluation), so results from different machines, or from the same
 //! noisy machine at different times, compare as ratios.
 
+mod previous;
+
 use std::time::Instant;
 
 use glam::Vec3;
@@ -157,6 +159,11 @@ pub struct WorkloadReport {
     pub bytes_per_vertex: f64,
     /// 30-iteration time on 1 thread over the time on all threads.
     pub thread_scaling_2_over_1: f64,
+    /// 30-iteration time of the solver before the issue-8 kernels (kept in the bench as a
+    /// baseline) over the time of the current one, both on one thread, measured in this run.
+    pub relax_speedup_vs_previous: f64,
+    /// Energy after 30 iterations of that previous solver, J (compare with `energy_after_30`).
+    pub previous_energy_after_30: f64,
     /// Time of one iteration of [`naive_scatter`] (the issue's plain scalar kernel: edge list,
     /// force scatter, damped Verlet) over the time of one relaxation iteration, both on one
     /// thread, measured in this run.
@@ -229,6 +236,16 @@ pub fn run_workload(work: &TubeWorkload, machine: &Machine, frames: usize) -> Wo
     let per_iteration = t_all / its;
     let floor = (n as f64 * MIN_BYTES_PER_VERTEX_ITERATION / (machine.bandwidth_gb_s * 1e9))
         .max(work.system.edge_count() as f64 * machine.spring_ns * 1e-9);
+    let (t_previous, previous_energy) = one.install(|| {
+        (0..runs)
+            .map(|_| {
+                let t = Instant::now();
+                let e = previous::relax(&work.system, work.mesh.positions(), &anchors, 30);
+                (t.elapsed().as_secs_f64(), e)
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .expect("at least one run")
+    });
     let (t_naive, _) = naive_scatter(work, &anchors, if n > 500_000 { 3 } else { 10 });
     // Solver vectors: x, trial, d, r (4 × 12 B), inverse diagonal and pin (5 B).
     let vectors = 4.0 * 12.0 + 5.0;
@@ -245,6 +262,8 @@ pub fn run_workload(work: &TubeWorkload, machine: &Machine, frames: usize) -> Wo
         collision_speedup_vs_naive: None,
         bytes_per_vertex: work.system.bytes_per_vertex() + vectors,
         thread_scaling_2_over_1: t_one / t_all,
+        relax_speedup_vs_previous: t_previous / t_one,
+        previous_energy_after_30: previous_energy,
         relax_speedup_vs_naive_scatter: t_naive / (t_one / its),
         energy_after_30: report.energy,
     }

@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use super::{Spring, VertexAnchor};
 
 /// Vertices per parallel chunk; fixed so reductions do not depend on the thread count.
-pub(crate) const CHUNK: usize = 2048;
+pub(crate) const CHUNK: usize = 1024;
 
 /// Inputs that stay fixed during one relaxation, in internal order.
 pub(crate) struct Frame<'a> {

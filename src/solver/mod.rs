@@ -323,6 +323,12 @@ impl SpringSystem {
     pub fn edge_count(&self) -> usize {
         self.edge_count
     }
+    /// The springs in internal order as CSR: the half-springs of internal vertex `i` are
+    /// `springs[offsets[i]..offsets[i + 1]]`, sorted by their other end. For benchmarks and
+    /// diagnostics.
+    pub fn csr(&self) -> (&[u32], &[Spring]) {
+        (&self.offsets, &self.springs)
+    }
     /// Internal order: `order()[i]` is the caller's index of internal vertex `i`.
     pub fn order(&self) -> &[u32] {
         &self.order
