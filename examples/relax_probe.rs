@@ -2,6 +2,10 @@
 //! about 10k vertices with anchors, relaxed for a fixed number of iterations.
 //!
 //! `cargo run --release --example relax_probe -- [vertices] [iterations] [frames]`
+//!
+//! One frame runs exactly `iterations` iterations (tolerance 0); several frames are
+//! warm-started and stop at the default tolerance. Frame `f` uses the anchors of the bench's
+//! animation frame `f + PROBE_FRAME0` (environment variable, default 10).
 
 use dermis::bench::TubeWorkload;
 use dermis::solver::{Loads, RelaxConfig};
@@ -14,7 +18,11 @@ fn main() {
     let work = TubeWorkload::new("probe", vertices);
     let mut x = work.mesh.positions().to_vec();
     for frame in 0..frames {
-        let anchors = work.anchors(frame + 10);
+        let first: usize = std::env::var("PROBE_FRAME0")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(10);
+        let anchors = work.anchors(frame + first);
         let loads = Loads {
             anchors: Some(&anchors),
             ..Default::default()
