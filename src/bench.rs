@@ -4,6 +4,8 @@
 //! the cost of one spring evaluation), so results from different machines, or from the same
 //! noisy machine at different times, compare as ratios.
 
+mod previous;
+
 use std::time::Instant;
 
 use glam::Vec3;
@@ -157,6 +159,15 @@ pub struct WorkloadReport {
     pub bytes_per_vertex: f64,
     /// 30-iteration time on 1 thread over the time on all threads.
     pub thread_scaling_2_over_1: f64,
+    /// 30-iteration time of the solver before the issue-8 kernels (kept in the bench as a
+    /// baseline) over the time of the current one, both on one thread, measured in this run.
+    pub relax_speedup_vs_previous: f64,
+    /// Energy after 30 iterations of that previous solver, J (compare with `energy_after_30`).
+    pub previous_energy_after_30: f64,
+    /// Time of one iteration of [`naive_scatter`] (the issue's plain scalar kernel: edge list,
+    /// force scatter, damped Verlet) over the time of one relaxation iteration, both on one
+    /// thread, measured in this run.
+    pub relax_speedup_vs_naive_scatter: f64,
     /// Total energy after 30 iterations from the same start, J (speed must not be bought by
     /// doing less work).
     pub energy_after_30: f64,
@@ -225,8 +236,19 @@ pub fn run_workload(work: &TubeWorkload, machine: &Machine, frames: usize) -> Wo
     let per_iteration = t_all / its;
     let floor = (n as f64 * MIN_BYTES_PER_VERTEX_ITERATION / (machine.bandwidth_gb_s * 1e9))
         .max(work.system.edge_count() as f64 * machine.spring_ns * 1e-9);
-    // Solver vectors: x, r, z, d, trial, r_trial (6 × 12 B), inverse diagonal and pin (5 B).
-    let vectors = 6.0 * 12.0 + 5.0;
+    let (t_previous, previous_energy) = one.install(|| {
+        (0..runs)
+            .map(|_| {
+                let t = Instant::now();
+                let e = previous::relax(&work.system, work.mesh.positions(), &anchors, 30);
+                (t.elapsed().as_secs_f64(), e)
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .expect("at least one run")
+    });
+    let (t_naive, _) = naive_scatter(work, &anchors, if n > 500_000 { 3 } else { 10 });
+    // Solver vectors: x, trial, d, r (4 × 12 B), inverse diagonal and pin (5 B).
+    let vectors = 4.0 * 12.0 + 5.0;
     WorkloadReport {
         name: work.name,
         skin_vertices: n,
@@ -240,8 +262,65 @@ pub fn run_workload(work: &TubeWorkload, machine: &Machine, frames: usize) -> Wo
         collision_speedup_vs_naive: None,
         bytes_per_vertex: work.system.bytes_per_vertex() + vectors,
         thread_scaling_2_over_1: t_one / t_all,
+        relax_speedup_vs_previous: t_previous / t_one,
+        previous_energy_after_30: previous_energy,
+        relax_speedup_vs_naive_scatter: t_naive / (t_one / its),
         energy_after_30: report.energy,
     }
+}
+
+/// The issue's baseline: a plain scalar kernel over an edge list in the mesh's own vertex
+/// order (force scatter, anchors, damped Verlet with unit mass), `iterations` iterations on the
+/// calling thread from the rest shape. Returns the best time of one iteration over three runs, s,
+/// and the final positions.
+pub fn naive_scatter(
+    work: &TubeWorkload,
+    anchors: &[VertexAnchor],
+    iterations: usize,
+) -> (f64, Vec<Vec3>) {
+    let mesh = &work.mesh;
+    let k = StiffnessRule::AreaOverLengthSquared
+        .edge_stiffness(mesh, &Modulus::Uniform(1000.0))
+        .expect("valid tube");
+    let rest = mesh.edge_lengths();
+    let edges: Vec<(u32, u32, f32, f32)> = mesh
+        .topology()
+        .edges()
+        .iter()
+        .zip(k.iter().zip(&rest))
+        .map(|(&[a, b], (&k, &l))| (a, b, k, l))
+        .collect();
+    let n = mesh.positions().len();
+    let mut best = f64::INFINITY;
+    let mut out = Vec::new();
+    for _ in 0..3 {
+        let mut x = mesh.positions().to_vec();
+        let mut v = vec![Vec3::ZERO; n];
+        let mut f = vec![Vec3::ZERO; n];
+        let t = Instant::now();
+        for _ in 0..iterations {
+            f.fill(Vec3::ZERO);
+            for &(a, b, k, l) in &edges {
+                let d = x[b as usize] - x[a as usize];
+                let len = d.length();
+                if len > f32::MIN_POSITIVE {
+                    let fe = d * (k * (len - l) / len);
+                    f[a as usize] += fe;
+                    f[b as usize] -= fe;
+                }
+            }
+            for ((x, v), (f, a)) in x.iter_mut().zip(&mut v).zip(f.iter().zip(anchors)) {
+                let d = *x - a.target;
+                let dn = d.dot(a.normal);
+                let fa = -(a.normal * (a.k_normal * dn) + (d - a.normal * dn) * a.k_tangent);
+                *v = *v * 0.98 + (*f + fa) * 1e-5;
+                *x += *v;
+            }
+        }
+        best = best.min(t.elapsed().as_secs_f64() / iterations.max(1) as f64);
+        out = std::hint::black_box(x);
+    }
+    (best, out)
 }
 
 /// The whole report of `dermis bench`.

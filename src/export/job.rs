@@ -400,7 +400,7 @@ pub fn run_export(
             written += 1;
             progress(written, total);
             let every = job.config.output.checkpoint_every;
-            if every > 0 && written % every == 0 && frame < last {
+            if every > 0 && written.is_multiple_of(every) && frame < last {
                 let ck = CheckpointFile {
                     version: 1,
                     fingerprint: fingerprint.clone(),

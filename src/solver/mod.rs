@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::mesh::TriMesh;
-use kernels::{CHUNK, Frame, dot, weighted_dot};
+use kernels::{Frame, Sums, dot, update_direction};
 
 /// One spring as seen from one of its ends: 12 bytes, stored twice per edge in CSR order.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -323,6 +323,12 @@ impl SpringSystem {
     pub fn edge_count(&self) -> usize {
         self.edge_count
     }
+    /// The springs in internal order as CSR: the half-springs of internal vertex `i` are
+    /// `springs[offsets[i]..offsets[i + 1]]`, sorted by their other end. For benchmarks and
+    /// diagnostics.
+    pub fn csr(&self) -> (&[u32], &[Spring]) {
+        (&self.offsets, &self.springs)
+    }
     /// Internal order: `order()[i]` is the caller's index of internal vertex `i`.
     pub fn order(&self) -> &[u32] {
         &self.order
@@ -364,7 +370,9 @@ impl SpringSystem {
         let xi = self.to_internal(x);
         let pinned = vec![false; xi.len()];
         let mut f = vec![Vec3::ZERO; xi.len()];
-        self.frame(None, &pinned, None).force_energy(&xi, &mut f);
+        let mut partial = vec![Sums::default(); kernels::chunks(xi.len())];
+        self.frame(None, &pinned, None)
+            .gather(&xi, None, &mut f, &mut partial);
         let mut out = vec![Vec3::ZERO; xi.len()];
         self.to_caller(&f, &mut out);
         Ok(out)
@@ -376,7 +384,11 @@ impl SpringSystem {
         let xi = self.to_internal(x);
         let pinned = vec![false; xi.len()];
         let mut f = vec![Vec3::ZERO; xi.len()];
-        Ok(self.frame(None, &pinned, None).force_energy(&xi, &mut f))
+        let mut partial = vec![Sums::default(); kernels::chunks(xi.len())];
+        Ok(self
+            .frame(None, &pinned, None)
+            .gather(&xi, None, &mut f, &mut partial)
+            .energy)
     }
 
     /// Moves `x` (caller's order; the warm start) to the equilibrium of the springs under
@@ -437,8 +449,12 @@ impl SpringSystem {
         let mut xi = self.to_internal(x);
 
         let inv_diag = frame.inverse_diagonal(n);
+        let chunks = kernels::chunks(n);
+        let mut sums_scratch = vec![Sums::default(); chunks];
+        let mut scalar_scratch = vec![0.0f64; chunks];
         let mut r = vec![Vec3::ZERO; n];
-        let mut energy = frame.force_energy(&xi, &mut r);
+        let sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
+        let mut energy = sums.energy;
         let external_norm = external.as_deref().map_or(0.0, |f| {
             let free: Vec<Vec3> = f
                 .iter()
@@ -447,7 +463,7 @@ impl SpringSystem {
                 .collect();
             dot(&free, &free).sqrt()
         });
-        let mut r_norm = dot(&r, &r).sqrt();
+        let mut r_norm = sums.rr.sqrt();
         let scale = config
             .force_scale
             .map(f64::from)
@@ -474,20 +490,11 @@ impl SpringSystem {
         };
         let converged = |r_norm: f64| r_norm <= config.tolerance as f64 * scale;
 
-        let precondition = |r: &[Vec3], z: &mut [Vec3]| {
-            z.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
-                for (o, z) in chunk.iter_mut().enumerate() {
-                    let i = c * CHUNK + o;
-                    *z = r[i] * inv_diag[i];
-                }
-            });
-        };
-        let mut z = vec![Vec3::ZERO; n];
-        precondition(&r, &mut z);
-        let mut d = z.clone();
-        let mut rz = weighted_dot(&r, &r, &inv_diag);
+        // d = z = w r (preconditioned steepest descent), slope = r·d.
+        let mut d = vec![Vec3::ZERO; n];
         let mut trial = vec![Vec3::ZERO; n];
-        let mut r_trial = vec![Vec3::ZERO; n];
+        let mut rz = sums.rzr;
+        let mut slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch);
         let mut iterations = 0;
         let mut stop = StopReason::Budget;
         while iterations < config.max_iterations {
@@ -495,78 +502,69 @@ impl SpringSystem {
                 stop = StopReason::Converged;
                 break;
             }
-            let slope = dot(&r, &d); // −dE/dα at α = 0, positive for a descent direction
             if slope <= 0.0 {
                 // Not a descent direction: restart with steepest (preconditioned) descent.
-                d.copy_from_slice(&z);
-                if rz <= 0.0 {
+                slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch);
+                if rz <= 0.0 || slope <= 0.0 {
                     stop = StopReason::Stalled;
                     break;
                 }
-                continue;
             }
-            let curvature = frame.curvature(&xi, &d);
+            let curvature = frame.curvature(&xi, &d, &mut scalar_scratch);
             let mut alpha = if curvature > 0.0 {
                 slope / curvature
             } else {
                 1.0
             };
-            let mut accepted = false;
-            for _ in 0..30 {
+            // The force gather at the trial point overwrites `r` (reading the old force for
+            // the Polak-Ribiere product first); a rejected trial restores it.
+            let mut accepted = None;
+            for attempt in 0..30 {
+                if attempt > 0 {
+                    frame.gather(&xi, None, &mut r, &mut sums_scratch);
+                }
                 let a = alpha as f32;
                 trial
-                    .par_chunks_mut(CHUNK)
-                    .enumerate()
-                    .for_each(|(c, chunk)| {
-                        for (o, t) in chunk.iter_mut().enumerate() {
-                            let i = c * CHUNK + o;
-                            *t = xi[i] + d[i] * a;
-                        }
-                    });
-                let e = frame.force_energy(&trial, &mut r_trial);
-                if e < energy {
-                    energy = e;
-                    accepted = true;
+                    .par_iter_mut()
+                    .zip(xi.par_iter().zip(d.par_iter()))
+                    .with_min_len(kernels::CHUNK)
+                    .for_each(|(t, (x, d))| *t = *x + *d * a);
+                let sums = frame.gather(&trial, Some(&inv_diag), &mut r, &mut sums_scratch);
+                if sums.energy < energy {
+                    accepted = Some(sums);
                     break;
                 }
                 alpha *= 0.5;
             }
-            if !accepted {
+            let Some(mut sums) = accepted else {
+                let sums = frame.gather(&xi, None, &mut r, &mut sums_scratch);
+                r_norm = sums.rr.sqrt();
                 stop = StopReason::Stalled;
                 break;
-            }
-            std::mem::swap(&mut xi, &mut trial);
-            std::mem::swap(&mut r, &mut r_trial);
+            };
+            energy = sums.energy;
             iterations += 1;
             let mut restart = false;
+            std::mem::swap(&mut xi, &mut trial);
             if let Some(p) = projection.as_deref_mut()
                 && p.project(&mut xi, &self.order)
             {
-                energy = frame.force_energy(&xi, &mut r);
+                sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
+                energy = sums.energy;
                 restart = true;
             }
             if config.record_energy {
                 history.push(energy);
             }
-            r_norm = dot(&r, &r).sqrt();
-            // Polak-Ribière+, preconditioned.
-            let z_old = std::mem::take(&mut z);
-            z = vec![Vec3::ZERO; n];
-            precondition(&r, &mut z);
-            let rz_new = weighted_dot(&r, &r, &inv_diag);
+            r_norm = sums.rr.sqrt();
+            // Polak-Ribiere+, preconditioned.
             let beta = if restart || rz <= 0.0 {
                 0.0
             } else {
-                ((rz_new - dot(&r, &z_old)) / rz).max(0.0)
+                ((sums.rzr - sums.rz_old) / rz).max(0.0)
             };
-            rz = rz_new;
-            let b = beta as f32;
-            d.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
-                for (o, d) in chunk.iter_mut().enumerate() {
-                    let i = c * CHUNK + o;
-                    *d = z[i] + *d * b;
-                }
-            });
+            rz = sums.rzr;
+            slope = update_direction(&mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch);
         }
         if stop == StopReason::Budget && converged(r_norm) {
             stop = StopReason::Converged;

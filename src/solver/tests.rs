@@ -214,3 +214,188 @@ fn bad_inputs_are_errors() {
         })
     );
 }
+
+/// The total energy at `x` in f64 straight from the definition (independent of the kernels).
+fn reference_energy(
+    mesh: &TriMesh,
+    k: &[f32],
+    x: &[Vec3],
+    anchors: &[VertexAnchor],
+    forces: &[Vec3],
+) -> f64 {
+    let rest = mesh.edge_lengths();
+    let mut e = 0.0f64;
+    for (i, &[a, b]) in mesh.topology().edges().iter().enumerate() {
+        let l = (x[a as usize].as_dvec3() - x[b as usize].as_dvec3()).length();
+        e += 0.5 * k[i] as f64 * (l - rest[i] as f64).powi(2);
+    }
+    for (p, a) in x.iter().zip(anchors) {
+        let d = p.as_dvec3() - a.target.as_dvec3();
+        let n = a.normal.as_dvec3();
+        let dn = d.dot(n);
+        e += 0.5 * a.k_normal as f64 * dn * dn
+            + 0.5 * a.k_tangent as f64 * (d - n * dn).length_squared();
+    }
+    for (p, f) in x.iter().zip(forces) {
+        e -= p.as_dvec3().dot(f.as_dvec3());
+    }
+    e
+}
+
+fn loaded_sheet(n: u32) -> (TriMesh, Vec<f32>, Vec<Vec3>, Vec<VertexAnchor>, Vec<Vec3>) {
+    let mesh = sheet(n);
+    let k = StiffnessRule::AreaOverLengthSquared
+        .edge_stiffness(&mesh, &Modulus::Uniform(1000.0))
+        .unwrap();
+    let x: Vec<Vec3> = mesh
+        .positions()
+        .iter()
+        .enumerate()
+        .map(|(i, p)| *p * 1.2 + Vec3::new(0.0, 0.0, 0.01 * ((i * 37 % 11) as f32 - 5.0)))
+        .collect();
+    let anchors: Vec<VertexAnchor> = mesh
+        .positions()
+        .iter()
+        .map(|p| VertexAnchor {
+            target: *p + Vec3::Z * 0.01 * (p.x * 9.0).sin(),
+            normal: Vec3::Z,
+            k_normal: 200.0,
+            k_tangent: 20.0,
+        })
+        .collect();
+    let forces = vec![Vec3::new(0.001, 0.0, -0.002); x.len()];
+    (mesh, k, x, anchors, forces)
+}
+
+#[test]
+fn reported_energy_matches_the_definition() {
+    let (mesh, k, mut x, anchors, forces) = loaded_sheet(20);
+    let s = SpringSystem::from_mesh(&mesh, &k).unwrap();
+    let loads = Loads {
+        forces: Some(&forces),
+        anchors: Some(&anchors),
+        ..Default::default()
+    };
+    let start = reference_energy(&mesh, &k, &x, &anchors, &forces);
+    let cfg = RelaxConfig {
+        max_iterations: 40,
+        tolerance: 0.0,
+        record_energy: true,
+        ..RelaxConfig::DEFAULT
+    };
+    let report = s.relax(&mut x, &loads, &cfg).unwrap();
+    let end = reference_energy(&mesh, &k, &x, &anchors, &forces);
+    let tol = |e: f64| 1e-9 * e.abs().max(1e-6);
+    let first = report.energy_history[0];
+    assert!((first - start).abs() < tol(start), "{first} vs {start}");
+    assert!(
+        (report.energy - end).abs() < tol(end),
+        "{} vs {end}",
+        report.energy
+    );
+    assert!(end < start);
+    // Springs alone: the closed form of one stretched spring.
+    // (0.75, 1, 0) is 1.25 long, exactly; stretch 0.5 against a rest length of 0.75.
+    let one = SpringSystem::new(&[Vec3::ZERO, Vec3::X], &[[0, 1]], &[300.0], &[0.75]).unwrap();
+    let e = one
+        .spring_energy(&[Vec3::ZERO, Vec3::new(0.75, 1.0, 0.0)])
+        .unwrap();
+    assert!((e - 0.5 * 300.0 * 0.25).abs() < 1e-12, "{e}");
+}
+
+#[test]
+fn results_are_bit_identical_for_any_thread_count() {
+    // 60 x 60 = 3600 vertices: two parallel chunks, so the chunked reductions matter.
+    let (mesh, k, x0, anchors, forces) = loaded_sheet(60);
+    let s = SpringSystem::from_mesh(&mesh, &k).unwrap();
+    let mut pinned = vec![false; x0.len()];
+    pinned[7] = true;
+    let loads = Loads {
+        forces: Some(&forces),
+        pinned: Some(&pinned),
+        anchors: Some(&anchors),
+    };
+    let cfg = RelaxConfig {
+        max_iterations: 60,
+        tolerance: 0.0,
+        record_energy: true,
+        ..RelaxConfig::DEFAULT
+    };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut x = x0.clone();
+            let report = s.relax(&mut x, &loads, &cfg).unwrap();
+            (x, report)
+        })
+    };
+    let (x1, r1) = run(1);
+    for threads in [2, 3] {
+        let (x, r) = run(threads);
+        assert!(
+            x.iter()
+                .zip(&x1)
+                .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits))
+        );
+        assert_eq!(r.energy.to_bits(), r1.energy.to_bits());
+        assert_eq!(r.iterations, r1.iterations);
+        assert_eq!(r.energy_history, r1.energy_history);
+    }
+    for w in r1.energy_history.windows(2) {
+        assert!(w[1] <= w[0], "energy rose from {} to {}", w[0], w[1]);
+    }
+}
+
+/// Keeps every vertex at or above a floor.
+struct Floor(f32);
+
+impl Projection for Floor {
+    fn project(&mut self, x: &mut [Vec3], _order: &[u32]) -> bool {
+        let mut moved = false;
+        for p in x {
+            if p.z < self.0 {
+                p.z = self.0;
+                moved = true;
+            }
+        }
+        moved
+    }
+}
+
+#[test]
+fn projection_holds_and_energy_falls_between_projections() {
+    // A sheet pinned at two corners sags under a load onto a floor just below it.
+    let mesh = sheet(12);
+    let s = system(&mesh);
+    let n = mesh.positions().len();
+    let mut x = mesh.positions().to_vec();
+    let mut pinned = vec![false; n];
+    pinned[0] = true;
+    pinned[n - 1] = true;
+    let forces = vec![Vec3::new(0.0, 0.0, -0.5); n];
+    let loads = Loads {
+        forces: Some(&forces),
+        pinned: Some(&pinned),
+        ..Default::default()
+    };
+    let floor = -0.06;
+    let cfg = RelaxConfig {
+        max_iterations: 200,
+        tolerance: 1e-5,
+        ..RelaxConfig::DEFAULT
+    };
+    let report = s
+        .relax_projected(&mut x, &loads, &cfg, Some(&mut Floor(floor)))
+        .unwrap();
+    assert!(report.iterations > 1);
+    assert!(x.iter().all(|p| p.z >= floor));
+    // The load is strong enough that the sheet reaches the floor somewhere.
+    assert!(x.iter().any(|p| p.z == floor));
+    // Without the floor, the same sheet sags lower.
+    let mut free = mesh.positions().to_vec();
+    s.relax(&mut free, &loads, &cfg).unwrap();
+    assert!(free.iter().any(|p| p.z < floor));
+}

@@ -31,12 +31,22 @@ pub fn run(args: Args) -> CliResult {
         m.threads, m.bandwidth_gb_s, m.spring_ns
     );
     println!(
-        "{:<10} {:>9} {:>9} {:>9} {:>7} {:>12} {:>7} {:>7} {:>8}",
-        "workload", "vertices", "frame ms", "p99 ms", "its", "Mvert-it/s", "floor", "2/1", "B/vert"
+        "{:<10} {:>9} {:>9} {:>9} {:>7} {:>12} {:>7} {:>7} {:>8} {:>9} {:>8}",
+        "workload",
+        "vertices",
+        "frame ms",
+        "p99 ms",
+        "its",
+        "Mvert-it/s",
+        "floor",
+        "2/1",
+        "B/vert",
+        "vs naive",
+        "vs prev"
     );
     for w in &report.workloads {
         println!(
-            "{:<10} {:>9} {:>9.2} {:>9.2} {:>7.1} {:>12.1} {:>7.3} {:>7.2} {:>8.1}",
+            "{:<10} {:>9} {:>9.2} {:>9.2} {:>7.1} {:>12.1} {:>7.3} {:>7.2} {:>8.1} {:>9.2} {:>8.2}",
             w.name,
             w.skin_vertices,
             w.frame_ms_median,
@@ -45,7 +55,9 @@ pub fn run(args: Args) -> CliResult {
             w.relax_vertex_iterations_per_s / 1e6,
             w.relax_fraction_of_floor,
             w.thread_scaling_2_over_1,
-            w.bytes_per_vertex
+            w.bytes_per_vertex,
+            w.relax_speedup_vs_naive_scatter,
+            w.relax_speedup_vs_previous
         );
     }
     Ok(())
