@@ -3,6 +3,7 @@
 
 mod failures;
 mod formats;
+mod job;
 
 use std::path::{Path, PathBuf};
 
