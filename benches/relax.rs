@@ -41,6 +41,7 @@ fn relax(c: &mut Criterion) {
             let config = RelaxConfig {
                 max_iterations: 30,
                 tolerance: 0.0,
+                stagnation_window: 0,
                 ..RelaxConfig::DEFAULT
             };
             b.iter(|| {

@@ -30,6 +30,8 @@ fn main() {
         let config = RelaxConfig {
             max_iterations: iterations as u32,
             tolerance: if frames > 1 { 1e-4 } else { 0.0 },
+            // A fixed amount of work: no early stop on stagnation.
+            stagnation_window: if frames > 1 { 50 } else { 0 },
             ..RelaxConfig::DEFAULT
         };
         let report = work

@@ -206,6 +206,7 @@ pub fn run_workload(work: &TubeWorkload, machine: &Machine, frames: usize) -> Wo
     let fixed = RelaxConfig {
         max_iterations: 30,
         tolerance: 0.0,
+        stagnation_window: 0,
         ..RelaxConfig::DEFAULT
     };
     let thirty = || {

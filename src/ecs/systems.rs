@@ -316,7 +316,7 @@ fn relax_one(
                 settings.tolerance,
             )
         })),
-        record_energy: false,
+        ..RelaxConfig::DEFAULT
     };
     let loads = loads.as_deref();
     let solver_loads = Loads {

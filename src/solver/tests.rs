@@ -399,3 +399,43 @@ fn projection_holds_and_energy_falls_between_projections() {
     s.relax(&mut free, &loads, &cfg).unwrap();
     assert!(free.iter().any(|p| p.z < floor));
 }
+
+/// An unreachable tolerance: the residual hits the f32 floor, and the stagnation stop ends the
+/// solve there (as `Stalled`, long before the budget) with the answer already accurate.
+#[test]
+fn stagnation_stops_at_the_f32_floor_instead_of_spending_the_budget() {
+    let rest: Vec<Vec3> = (0..6)
+        .map(|i| Vec3::new(i as f32 * 0.1, 0.0, 0.0))
+        .collect();
+    let edges: Vec<[u32; 2]> = (0..5).map(|i| [i, i + 1]).collect();
+    let k = [100.0, 200.0, 50.0, 400.0, 80.0];
+    let s = SpringSystem::new(&rest, &edges, &k, &[0.1; 5]).unwrap();
+    let mut f = vec![Vec3::ZERO; 6];
+    f[5] = Vec3::new(1.5, 0.0, 0.0);
+    let mut pinned = vec![false; 6];
+    pinned[0] = true;
+    let loads = Loads {
+        forces: Some(&f),
+        pinned: Some(&pinned),
+        ..Default::default()
+    };
+    let cfg = RelaxConfig {
+        tolerance: 1e-12,
+        max_iterations: 10_000,
+        ..Default::default()
+    };
+    let mut x = rest.clone();
+    let report = s.relax(&mut x, &loads, &cfg).unwrap();
+    assert_eq!(report.stop, StopReason::Stalled, "{report:?}");
+    assert!(report.iterations < 200, "{report:?}");
+    let expected: f32 = 0.5 + k.iter().map(|k| 1.5 / k).sum::<f32>();
+    assert!((x[5].x - expected).abs() < 1e-5);
+    // Switched off, the same solve runs on (it may still stop when no step lowers the energy).
+    let mut y = rest.clone();
+    let off = RelaxConfig {
+        stagnation_window: 0,
+        ..cfg
+    };
+    let report_off = s.relax(&mut y, &loads, &off).unwrap();
+    assert!(report_off.iterations >= report.iterations);
+}
