@@ -8,9 +8,9 @@ use glam::Vec3;
 use gltf::json;
 use json::validation::{Checked::Valid, USize64};
 
-use super::atomic::{check_writable, write_atomic};
+use super::atomic::write_atomic;
 use super::geometry::vertex_normals;
-use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Staged};
+use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Lifecycle, Staged};
 
 /// Writes one binary glTF 2.0 file. Layout, per exported mesh (one node and one mesh each,
 /// node named `<role>:<name>`):
@@ -34,14 +34,13 @@ use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Staged};
 pub struct GlbSink {
     out: PathBuf,
     options: ExportOptions,
-    staged: Option<Staged>,
+    life: Lifecycle,
     /// Frame indices written.
     frames: Vec<u32>,
     /// Positions per frame per exported mesh.
     positions: Vec<Vec<Vec<Vec3>>>,
     /// Peak strain per exported mesh per vertex.
     peak_strain: Vec<Vec<f32>>,
-    finished: bool,
 }
 
 impl GlbSink {
@@ -50,40 +49,27 @@ impl GlbSink {
         Self {
             out: out.to_owned(),
             options,
-            staged: None,
+            life: Lifecycle::default(),
             frames: Vec::new(),
             positions: Vec::new(),
             peak_strain: Vec::new(),
-            finished: false,
         }
     }
 }
 
 impl FrameSink for GlbSink {
     fn begin(&mut self, meta: &ExportMeta) -> Result<(), ExportError> {
-        if self.staged.is_some() || self.finished {
-            return Err(ExportError::State("begin called twice"));
-        }
-        let staged = Staged::new(meta, &self.options)?;
-        check_writable(&self.out)?;
+        let staged = self.life.begin(meta, &self.options, &self.out)?;
         self.peak_strain = staged
             .meshes
             .iter()
             .map(|m| vec![1.0; m.rest_positions.len()])
             .collect();
-        self.staged = Some(staged);
         Ok(())
     }
 
     fn write_frame(&mut self, frame: u32, positions: &[&[Vec3]]) -> Result<(), ExportError> {
-        if self.finished {
-            return Err(ExportError::State("write_frame after finish"));
-        }
-        let staged = self
-            .staged
-            .as_mut()
-            .ok_or(ExportError::State("write_frame before begin"))?;
-        let meshes = staged.frame(frame, positions)?;
+        let (staged, meshes) = self.life.frame(frame, positions)?;
         if let Some(map) = self.options.strain_colors {
             for ((rest, peak), p) in staged.rest.iter().zip(&mut self.peak_strain).zip(&meshes) {
                 for (peak, s) in peak.iter_mut().zip(rest.vertex_strain(p, map.measure)) {
@@ -101,14 +87,7 @@ impl FrameSink for GlbSink {
     }
 
     fn finish(&mut self) -> Result<Vec<PathBuf>, ExportError> {
-        if self.finished {
-            return Err(ExportError::State("finish called twice"));
-        }
-        let staged = self
-            .staged
-            .as_ref()
-            .ok_or(ExportError::State("finish before begin"))?;
-        self.finished = true;
+        let staged = self.life.finish()?;
         if self.frames.is_empty() {
             return Err(ExportError::NoFrames {
                 path: self.out.clone(),

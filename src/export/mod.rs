@@ -442,6 +442,61 @@ impl FrameSequence {
     }
 }
 
+/// The `begin` → `write_frame`* → `finish` order every sink enforces, holding the validated
+/// metadata in between.
+#[derive(Debug, Default)]
+struct Lifecycle {
+    staged: Option<Staged>,
+    finished: bool,
+}
+
+impl Lifecycle {
+    /// Validates `meta` and the output directory; errors if already begun.
+    fn begin(
+        &mut self,
+        meta: &ExportMeta,
+        options: &ExportOptions,
+        out: &Path,
+    ) -> Result<&mut Staged, ExportError> {
+        if self.staged.is_some() || self.finished {
+            return Err(ExportError::State("begin called twice"));
+        }
+        let staged = Staged::new(meta, options)?;
+        atomic::check_writable(out)?;
+        Ok(self.staged.insert(staged))
+    }
+
+    /// Validates a frame; returns the metadata and the exported meshes' positions.
+    fn frame<'a>(
+        &mut self,
+        frame: u32,
+        positions: &[&'a [Vec3]],
+    ) -> Result<(&mut Staged, Vec<&'a [Vec3]>), ExportError> {
+        if self.finished {
+            return Err(ExportError::State("write_frame after finish"));
+        }
+        let staged = self
+            .staged
+            .as_mut()
+            .ok_or(ExportError::State("write_frame before begin"))?;
+        let meshes = staged.frame(frame, positions)?;
+        Ok((staged, meshes))
+    }
+
+    /// Marks the sink finished; errors before `begin` or on a second call.
+    fn finish(&mut self) -> Result<&Staged, ExportError> {
+        if self.finished {
+            return Err(ExportError::State("finish called twice"));
+        }
+        let staged = self
+            .staged
+            .as_ref()
+            .ok_or(ExportError::State("finish before begin"))?;
+        self.finished = true;
+        Ok(staged)
+    }
+}
+
 /// The validated part of [`ExportMeta`] a sink keeps: the selected meshes and their rest data.
 #[derive(Debug)]
 struct Staged {

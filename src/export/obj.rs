@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::atomic::{check_writable, write_atomic};
+use super::atomic::write_atomic;
 use super::geometry::vertex_normals;
 use super::text::push_vec3;
-use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Staged, sequence_path};
+use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Lifecycle, Staged, sequence_path};
 
 /// Writes one OBJ per frame (`arm_000012.obj` for `out = arm.obj`): per mesh an object
 /// `o <role>:<name>`, vertices `v x y z r g b` (strain colour, if enabled), angle-weighted
@@ -19,9 +19,8 @@ use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Staged, sequence_
 pub struct ObjSink {
     out: PathBuf,
     options: ExportOptions,
-    staged: Option<Staged>,
+    life: Lifecycle,
     written: Vec<PathBuf>,
-    finished: bool,
 }
 
 impl ObjSink {
@@ -30,33 +29,20 @@ impl ObjSink {
         Self {
             out: out.to_owned(),
             options,
-            staged: None,
+            life: Lifecycle::default(),
             written: Vec::new(),
-            finished: false,
         }
     }
 }
 
 impl FrameSink for ObjSink {
     fn begin(&mut self, meta: &ExportMeta) -> Result<(), ExportError> {
-        if self.staged.is_some() || self.finished {
-            return Err(ExportError::State("begin called twice"));
-        }
-        let staged = Staged::new(meta, &self.options)?;
-        check_writable(&self.out)?;
-        self.staged = Some(staged);
+        self.life.begin(meta, &self.options, &self.out)?;
         Ok(())
     }
 
     fn write_frame(&mut self, frame: u32, positions: &[&[Vec3]]) -> Result<(), ExportError> {
-        if self.finished {
-            return Err(ExportError::State("write_frame after finish"));
-        }
-        let staged = self
-            .staged
-            .as_mut()
-            .ok_or(ExportError::State("write_frame before begin"))?;
-        let meshes = staged.frame(frame, positions)?;
+        let (staged, meshes) = self.life.frame(frame, positions)?;
         let text = frame_text(staged, &self.options, frame, &meshes);
         let path = sequence_path(&self.out, frame, self.options.frame_digits, "obj");
         write_atomic(&path, |w| w.write_all(text.as_bytes()))?;
@@ -65,10 +51,7 @@ impl FrameSink for ObjSink {
     }
 
     fn finish(&mut self) -> Result<Vec<PathBuf>, ExportError> {
-        if self.staged.is_none() || self.finished {
-            return Err(ExportError::State("finish without begin, or twice"));
-        }
-        self.finished = true;
+        self.life.finish()?;
         Ok(std::mem::take(&mut self.written))
     }
 }

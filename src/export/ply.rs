@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::atomic::{check_writable, write_atomic};
+use super::atomic::write_atomic;
 use super::geometry::{to_u8, vertex_normals};
-use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Staged, sequence_path};
+use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Lifecycle, Staged, sequence_path};
 
 /// Writes one binary little-endian PLY per frame (`arm_000012.ply` for `out = arm.ply`).
 /// Vertices carry `float x y z nx ny nz` (angle-weighted normals) and, with strain colours,
@@ -19,9 +19,8 @@ use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Staged, sequence_
 pub struct PlySink {
     out: PathBuf,
     options: ExportOptions,
-    staged: Option<Staged>,
+    life: Lifecycle,
     written: Vec<PathBuf>,
-    finished: bool,
 }
 
 impl PlySink {
@@ -30,33 +29,20 @@ impl PlySink {
         Self {
             out: out.to_owned(),
             options,
-            staged: None,
+            life: Lifecycle::default(),
             written: Vec::new(),
-            finished: false,
         }
     }
 }
 
 impl FrameSink for PlySink {
     fn begin(&mut self, meta: &ExportMeta) -> Result<(), ExportError> {
-        if self.staged.is_some() || self.finished {
-            return Err(ExportError::State("begin called twice"));
-        }
-        let staged = Staged::new(meta, &self.options)?;
-        check_writable(&self.out)?;
-        self.staged = Some(staged);
+        self.life.begin(meta, &self.options, &self.out)?;
         Ok(())
     }
 
     fn write_frame(&mut self, frame: u32, positions: &[&[Vec3]]) -> Result<(), ExportError> {
-        if self.finished {
-            return Err(ExportError::State("write_frame after finish"));
-        }
-        let staged = self
-            .staged
-            .as_mut()
-            .ok_or(ExportError::State("write_frame before begin"))?;
-        let meshes = staged.frame(frame, positions)?;
+        let (staged, meshes) = self.life.frame(frame, positions)?;
         let bytes = frame_bytes(staged, &self.options, frame, &meshes);
         let path = sequence_path(&self.out, frame, self.options.frame_digits, "ply");
         write_atomic(&path, |w| w.write_all(&bytes))?;
@@ -65,10 +51,7 @@ impl FrameSink for PlySink {
     }
 
     fn finish(&mut self) -> Result<Vec<PathBuf>, ExportError> {
-        if self.staged.is_none() || self.finished {
-            return Err(ExportError::State("finish without begin, or twice"));
-        }
-        self.finished = true;
+        self.life.finish()?;
         Ok(std::mem::take(&mut self.written))
     }
 }

@@ -7,10 +7,10 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::atomic::{check_writable, write_atomic};
+use super::atomic::write_atomic;
 use super::geometry::vertex_normals;
 use super::text::{push_f32, push_vec3};
-use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Staged};
+use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Lifecycle, Staged};
 
 /// Writes one USD text stage (`.usda`). The root prim `/dermis` (an `Xform`, the default prim)
 /// holds one `Mesh` per exported mesh, named `<role>_<name>` (made a valid identifier, with a
@@ -27,11 +27,10 @@ use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Staged};
 pub struct UsdaSink {
     out: PathBuf,
     options: ExportOptions,
-    staged: Option<Staged>,
+    life: Lifecycle,
     /// Per exported mesh: the text of its time samples so far.
     samples: Vec<MeshSamples>,
     first_last: Option<(u32, u32)>,
-    finished: bool,
 }
 
 #[derive(Debug, Default)]
@@ -48,39 +47,26 @@ impl UsdaSink {
         Self {
             out: out.to_owned(),
             options,
-            staged: None,
+            life: Lifecycle::default(),
             samples: Vec::new(),
             first_last: None,
-            finished: false,
         }
     }
 }
 
 impl FrameSink for UsdaSink {
     fn begin(&mut self, meta: &ExportMeta) -> Result<(), ExportError> {
-        if self.staged.is_some() || self.finished {
-            return Err(ExportError::State("begin called twice"));
-        }
-        let staged = Staged::new(meta, &self.options)?;
-        check_writable(&self.out)?;
+        let staged = self.life.begin(meta, &self.options, &self.out)?;
         self.samples = staged
             .meshes
             .iter()
             .map(|_| MeshSamples::default())
             .collect();
-        self.staged = Some(staged);
         Ok(())
     }
 
     fn write_frame(&mut self, frame: u32, positions: &[&[Vec3]]) -> Result<(), ExportError> {
-        if self.finished {
-            return Err(ExportError::State("write_frame after finish"));
-        }
-        let staged = self
-            .staged
-            .as_mut()
-            .ok_or(ExportError::State("write_frame before begin"))?;
-        let meshes = staged.frame(frame, positions)?;
+        let (staged, meshes) = self.life.frame(frame, positions)?;
         for (((mesh, rest), p), s) in staged
             .meshes
             .iter()
@@ -110,14 +96,7 @@ impl FrameSink for UsdaSink {
     }
 
     fn finish(&mut self) -> Result<Vec<PathBuf>, ExportError> {
-        if self.finished {
-            return Err(ExportError::State("finish called twice"));
-        }
-        let staged = self
-            .staged
-            .as_ref()
-            .ok_or(ExportError::State("finish before begin"))?;
-        self.finished = true;
+        let staged = self.life.finish()?;
         let Some((first, last)) = self.first_last else {
             return Err(ExportError::NoFrames {
                 path: self.out.clone(),
