@@ -497,6 +497,58 @@ impl Lifecycle {
     }
 }
 
+/// What the one-file-per-frame sinks (OBJ, PLY) share: the lifecycle, the output name and the
+/// files written so far. Each sink supplies only its frame encoder.
+#[derive(Debug)]
+struct Sequence {
+    out: PathBuf,
+    options: ExportOptions,
+    life: Lifecycle,
+    written: Vec<PathBuf>,
+    ext: &'static str,
+}
+
+/// Encodes one frame of the exported meshes as a whole file.
+type FrameEncoder = fn(&Staged, &ExportOptions, u32, &[&[Vec3]]) -> Vec<u8>;
+
+impl Sequence {
+    fn new(out: &Path, options: ExportOptions, ext: &'static str) -> Self {
+        Self {
+            out: out.to_owned(),
+            options,
+            life: Lifecycle::default(),
+            written: Vec::new(),
+            ext,
+        }
+    }
+
+    fn begin(&mut self, meta: &ExportMeta) -> Result<(), ExportError> {
+        self.life.begin(meta, &self.options, &self.out)?;
+        Ok(())
+    }
+
+    /// Validates the frame, encodes it and writes it atomically to its numbered file.
+    fn write_frame(
+        &mut self,
+        frame: u32,
+        positions: &[&[Vec3]],
+        encode: FrameEncoder,
+    ) -> Result<(), ExportError> {
+        use std::io::Write as _;
+        let (staged, meshes) = self.life.frame(frame, positions)?;
+        let bytes = encode(staged, &self.options, frame, &meshes);
+        let path = sequence_path(&self.out, frame, self.options.frame_digits, self.ext);
+        write_atomic(&path, |w| w.write_all(&bytes))?;
+        self.written.push(path);
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<Vec<PathBuf>, ExportError> {
+        self.life.finish()?;
+        Ok(std::mem::take(&mut self.written))
+    }
+}
+
 /// The validated part of [`ExportMeta`] a sink keeps: the selected meshes and their rest data.
 #[derive(Debug)]
 struct Staged {

@@ -1,62 +1,43 @@
 //! Wavefront OBJ sequence: one file per frame, each mesh its own `o <role>:<name>` object.
 
 use std::fmt::Write as _;
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::atomic::write_atomic;
 use super::geometry::vertex_normals;
 use super::text::push_vec3;
-use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Lifecycle, Staged, sequence_path};
+use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Sequence, Staged};
 
 /// Writes one OBJ per frame (`arm_000012.obj` for `out = arm.obj`): per mesh an object
 /// `o <role>:<name>`, vertices `v x y z r g b` (strain colour, if enabled), angle-weighted
 /// normals `vn`, and faces `f a//a b//b c//c`. Floats are written in shortest round-trip form,
 /// so positions read back bit-exactly.
 #[derive(Debug)]
-pub struct ObjSink {
-    out: PathBuf,
-    options: ExportOptions,
-    life: Lifecycle,
-    written: Vec<PathBuf>,
-}
+pub struct ObjSink(Sequence);
 
 impl ObjSink {
     /// A sink for the sequence named by `out` (see [`super::Format::sink`]).
     pub fn new(out: &Path, options: ExportOptions) -> Self {
-        Self {
-            out: out.to_owned(),
-            options,
-            life: Lifecycle::default(),
-            written: Vec::new(),
-        }
+        Self(Sequence::new(out, options, "obj"))
     }
 }
 
 impl FrameSink for ObjSink {
     fn begin(&mut self, meta: &ExportMeta) -> Result<(), ExportError> {
-        self.life.begin(meta, &self.options, &self.out)?;
-        Ok(())
+        self.0.begin(meta)
     }
 
     fn write_frame(&mut self, frame: u32, positions: &[&[Vec3]]) -> Result<(), ExportError> {
-        let (staged, meshes) = self.life.frame(frame, positions)?;
-        let text = frame_text(staged, &self.options, frame, &meshes);
-        let path = sequence_path(&self.out, frame, self.options.frame_digits, "obj");
-        write_atomic(&path, |w| w.write_all(text.as_bytes()))?;
-        self.written.push(path);
-        Ok(())
+        self.0.write_frame(frame, positions, frame_text)
     }
 
     fn finish(&mut self) -> Result<Vec<PathBuf>, ExportError> {
-        self.life.finish()?;
-        Ok(std::mem::take(&mut self.written))
+        self.0.finish()
     }
 }
 
-fn frame_text(staged: &Staged, options: &ExportOptions, frame: u32, meshes: &[&[Vec3]]) -> String {
+fn frame_text(staged: &Staged, options: &ExportOptions, frame: u32, meshes: &[&[Vec3]]) -> Vec<u8> {
     let vertices: usize = meshes.iter().map(|m| m.len()).sum();
     let mut s = String::with_capacity(vertices * 100);
     let _ = writeln!(s, "# dermis frame {frame}");
@@ -86,5 +67,5 @@ fn frame_text(staged: &Staged, options: &ExportOptions, frame: u32, meshes: &[&[
         }
         base += p.len();
     }
-    s
+    s.into_bytes()
 }

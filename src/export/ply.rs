@@ -1,14 +1,12 @@
 //! Binary little-endian PLY sequence: one file per frame, all exported meshes in one file.
 
 use std::fmt::Write as _;
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::atomic::write_atomic;
 use super::geometry::{to_u8, vertex_normals};
-use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Lifecycle, Staged, sequence_path};
+use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Sequence, Staged};
 
 /// Writes one binary little-endian PLY per frame (`arm_000012.ply` for `out = arm.ply`).
 /// Vertices carry `float x y z nx ny nz` (angle-weighted normals) and, with strain colours,
@@ -16,43 +14,26 @@ use super::{ExportError, ExportMeta, ExportOptions, FrameSink, Lifecycle, Staged
 /// concatenated in one file; a `comment mesh <role>:<name> vertices <first> <count> faces
 /// <first> <count>` header line per mesh tells them apart.
 #[derive(Debug)]
-pub struct PlySink {
-    out: PathBuf,
-    options: ExportOptions,
-    life: Lifecycle,
-    written: Vec<PathBuf>,
-}
+pub struct PlySink(Sequence);
 
 impl PlySink {
     /// A sink for the sequence named by `out` (see [`super::Format::sink`]).
     pub fn new(out: &Path, options: ExportOptions) -> Self {
-        Self {
-            out: out.to_owned(),
-            options,
-            life: Lifecycle::default(),
-            written: Vec::new(),
-        }
+        Self(Sequence::new(out, options, "ply"))
     }
 }
 
 impl FrameSink for PlySink {
     fn begin(&mut self, meta: &ExportMeta) -> Result<(), ExportError> {
-        self.life.begin(meta, &self.options, &self.out)?;
-        Ok(())
+        self.0.begin(meta)
     }
 
     fn write_frame(&mut self, frame: u32, positions: &[&[Vec3]]) -> Result<(), ExportError> {
-        let (staged, meshes) = self.life.frame(frame, positions)?;
-        let bytes = frame_bytes(staged, &self.options, frame, &meshes);
-        let path = sequence_path(&self.out, frame, self.options.frame_digits, "ply");
-        write_atomic(&path, |w| w.write_all(&bytes))?;
-        self.written.push(path);
-        Ok(())
+        self.0.write_frame(frame, positions, frame_bytes)
     }
 
     fn finish(&mut self) -> Result<Vec<PathBuf>, ExportError> {
-        self.life.finish()?;
-        Ok(std::mem::take(&mut self.written))
+        self.0.finish()
     }
 }
 
