@@ -47,15 +47,7 @@ fn grid(n: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
     let p = (0..n * n)
         .map(|i| Vec3::new((i % n) as f32, (i / n) as f32, 0.0))
         .collect();
-    let mut t = Vec::new();
-    for y in 0..n - 1 {
-        for x in 0..n - 1 {
-            let v = y * n + x;
-            t.push([v, v + 1, v + n + 1]);
-            t.push([v, v + n + 1, v + n]);
-        }
-    }
-    (p, t)
+    (p, crate::mesh::shapes::grid_triangles(n, n))
 }
 
 #[test]

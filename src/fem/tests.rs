@@ -68,15 +68,7 @@ fn square_mesh(n: u32) -> TriMesh {
             ));
         }
     }
-    let mut t = Vec::new();
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let a = j * n + i;
-            t.push([a, a + 1, a + n + 1]);
-            t.push([a, a + n + 1, a + n]);
-        }
-    }
-    TriMesh::new(p, t).unwrap()
+    TriMesh::new(p, crate::mesh::shapes::grid_triangles(n, n)).unwrap()
 }
 
 /// A square pulled uniformly on two opposite sides stretches uniformly, with the Poisson

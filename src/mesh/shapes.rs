@@ -55,13 +55,26 @@ pub fn sheet(n: u32, size: f32) -> TriMesh {
             positions.push(Vec3::new(u * size, v * size, 0.0));
         }
     }
-    let mut triangles = Vec::with_capacity((2 * (n - 1) * (n - 1)) as usize);
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let a = j * n + i;
-            triangles.push([a, a + 1, a + n + 1]);
-            triangles.push([a, a + n + 1, a + n]);
+    TriMesh::new(positions, grid_triangles(n, n)).expect("the sheet is a valid mesh")
+}
+
+/// The triangles of an `nx × ny`-vertex grid whose vertices are numbered row by row
+/// (`j * nx + i`): two triangles per cell, counter-clockwise when `i` runs along +x and `j`
+/// along +y. Pair it with your own vertex positions for any flat or curved grid.
+///
+/// ```
+/// let t = dermis::mesh::shapes::grid_triangles(3, 2);
+/// assert_eq!(t, vec![[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]]);
+/// ```
+pub fn grid_triangles(nx: u32, ny: u32) -> Vec<[u32; 3]> {
+    let mut triangles =
+        Vec::with_capacity((2 * nx.saturating_sub(1) * ny.saturating_sub(1)) as usize);
+    for j in 0..ny.saturating_sub(1) {
+        for i in 0..nx.saturating_sub(1) {
+            let a = j * nx + i;
+            triangles.push([a, a + 1, a + nx + 1]);
+            triangles.push([a, a + nx + 1, a + nx]);
         }
     }
-    TriMesh::new(positions, triangles).expect("the sheet is a valid mesh")
+    triangles
 }

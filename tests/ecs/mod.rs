@@ -22,15 +22,7 @@ pub fn sheet(n: u32) -> TriMesh {
             ));
         }
     }
-    let mut t = Vec::new();
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let a = j * n + i;
-            t.push([a, a + 1, a + n + 1]);
-            t.push([a, a + n + 1, a + n]);
-        }
-    }
-    TriMesh::new(p, t).unwrap()
+    TriMesh::new(p, dermis::mesh::shapes::grid_triangles(n, n)).unwrap()
 }
 
 /// The frame counter the test animation reads.

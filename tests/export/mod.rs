@@ -30,15 +30,7 @@ fn sheet(nx: u32, ny: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
     let p = (0..nx * ny)
         .map(|i| Vec3::new(0.1 * (i % nx) as f32, 0.1 * (i / nx) as f32, 0.0))
         .collect();
-    let mut t = Vec::new();
-    for y in 0..ny - 1 {
-        for x in 0..nx - 1 {
-            let v = y * nx + x;
-            t.push([v, v + 1, v + nx + 1]);
-            t.push([v, v + nx + 1, v + nx]);
-        }
-    }
-    (p, t)
+    (p, dermis::mesh::shapes::grid_triangles(nx, ny))
 }
 
 /// A closed tetrahedron standing in for a bone.
