@@ -55,8 +55,8 @@ use parry3d::math::Pose;
 use thiserror::Error;
 
 use super::components::{RelaxSettings, SkinAnchors, SkinContact, SkinMaterial};
-use super::spawn::{SkinBuilder, vertex_normals};
 use super::scene::{ColliderDrive, ColliderState, Tissue, VertexWeld};
+use super::spawn::{SkinBuilder, vertex_normals};
 use super::{DermisSystems, SkinError, refresh_colliders};
 use crate::anatomy::AnatomyError;
 use crate::anatomy::dynamics::AnatomySystem;
@@ -314,7 +314,11 @@ impl SpawnedAnatomy {
 }
 
 /// The collider of `state` as it is now (rebuilt, so no stale motion is counted).
-fn current_collider(state: &ColliderState, tissue: Tissue, index: usize) -> Result<ColliderMesh, RigError> {
+fn current_collider(
+    state: &ColliderState,
+    tissue: Tissue,
+    index: usize,
+) -> Result<ColliderMesh, RigError> {
     match state.drive {
         ColliderDrive::Deforming { .. } => ColliderMesh::from_mesh(
             state.local_vertices.clone(),
@@ -586,7 +590,10 @@ fn spawn_jaw_skin(
     let vertex_count = mesh.positions().len();
     let contact = anatomy.skin_contact(world, vertex_count, config.contact)?;
     let entity = SkinBuilder::new(mesh, config.material.clone())
-        .with_rest_anchors(config.anchor_k_normal_n_per_m, config.anchor_k_tangent_n_per_m)
+        .with_rest_anchors(
+            config.anchor_k_normal_n_per_m,
+            config.anchor_k_tangent_n_per_m,
+        )
         .with_relax_settings(config.relax)
         .spawn(world)?;
     world.entity_mut(entity).insert((binding, contact));
@@ -622,11 +629,11 @@ pub fn apply_anatomy_inputs(
             continue;
         };
         let t = target.0;
-        if let Err(e) = rig
-            .bypass_change_detection()
-            .system
-            .set_kinematic_pose(bone.index, t.rotation, t.translation)
-        {
+        if let Err(e) = rig.bypass_change_detection().system.set_kinematic_pose(
+            bone.index,
+            t.rotation,
+            t.translation,
+        ) {
             diagnostics.error = Some(e);
         }
     }
@@ -706,10 +713,7 @@ pub fn write_anatomy_outputs(
 }
 
 /// Moves the anchors of every [`BoneSkinning`] skin with its rig's bone poses.
-pub fn follow_bones(
-    rigs: Query<&AnatomyRig>,
-    mut skins: Query<(&BoneSkinning, &mut SkinAnchors)>,
-) {
+pub fn follow_bones(rigs: Query<&AnatomyRig>, mut skins: Query<(&BoneSkinning, &mut SkinAnchors)>) {
     for (binding, mut anchors) in &mut skins {
         let Ok(rig) = rigs.get(binding.rig) else {
             continue;

@@ -125,7 +125,10 @@ fn muscle_collider_tracks_the_lattice_and_the_skin_stays_outside() {
         touching_at_end = 0;
         for (v, &p) in x.iter().enumerate() {
             let proj = shape.project_local_point(p, false);
-            assert!(!proj.is_inside, "frame {frame}: skin vertex {v} inside the muscle");
+            assert!(
+                !proj.is_inside,
+                "frame {frame}: skin vertex {v} inside the muscle"
+            );
             let d = (proj.point - p).length();
             assert!(
                 d > 0.5 * thickness,
@@ -137,7 +140,10 @@ fn muscle_collider_tracks_the_lattice_and_the_skin_stays_outside() {
         }
     }
     // Not vacuous: the bulging muscle carries the skin.
-    assert!(touching_at_end > 20, "{touching_at_end} skin vertices touch");
+    assert!(
+        touching_at_end > 20,
+        "{touching_at_end} skin vertices touch"
+    );
 }
 
 #[test]
@@ -154,7 +160,11 @@ fn muscle_volume_holds_within_5_percent_through_the_ecs() {
         schedule.run(&mut world);
         let c = world.get::<ColliderState>(jaw.muscle).unwrap();
         let v = enclosed_volume(&c.local_vertices, &c.triangles);
-        assert!((v / rest - 1.0).abs() < 0.05, "frame {frame}: volume x{}", v / rest);
+        assert!(
+            (v / rest - 1.0).abs() < 0.05,
+            "frame {frame}: volume x{}",
+            v / rest
+        );
         let state = world.get::<MuscleState>(jaw.muscle).unwrap();
         assert!(
             // Cells and surface split the non-planar side quads differently.
@@ -259,7 +269,11 @@ fn export_bytes_are_identical_across_runs_and_thread_counts() {
             .arg(&out)
             .output()
             .unwrap();
-        assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+        assert!(
+            status.status.success(),
+            "{}",
+            String::from_utf8_lossy(&status.stderr)
+        );
         bytes.push(std::fs::read(&out).unwrap());
     }
     assert!(bytes[0] == bytes[1], "1 and 2 threads gave different files");
@@ -306,7 +320,11 @@ fn the_cli_writes_glb_and_obj_that_read_back() {
         .arg("--json")
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(summary["frames"], 3);
     assert_eq!(summary["jaw_angle_deg"].as_array().unwrap().len(), 3);
@@ -338,7 +356,11 @@ fn the_cli_writes_glb_and_obj_that_read_back() {
         let prim = node.mesh().unwrap().primitives().next().unwrap();
         let reader = prim.reader(|b| Some(&buffers[b.index()]));
         assert_eq!(reader.read_positions().unwrap().count(), want);
-        assert_eq!(reader.read_morph_targets().count(), 3, "one target per frame");
+        assert_eq!(
+            reader.read_morph_targets().count(),
+            3,
+            "one target per frame"
+        );
     }
 
     let obj = dir.path().join("seq").join("jaw.obj");
@@ -348,7 +370,11 @@ fn the_cli_writes_glb_and_obj_that_read_back() {
         .arg(&obj)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let mut files: Vec<_> = std::fs::read_dir(dir.path().join("seq"))
         .unwrap()
         .map(|e| e.unwrap().path())
@@ -406,5 +432,9 @@ fn bone_pose_angle_matches_the_chin_measurement() {
     let pose = world.get::<BonePose>(jaw.jaw).unwrap();
     let a = pose.angle_about(JawScene::HINGE_AXIS).to_degrees();
     assert!(a > 1.0);
-    assert!((a - chin_angle_deg(pose)).abs() < 0.5, "{a} vs {}", chin_angle_deg(pose));
+    assert!(
+        (a - chin_angle_deg(pose)).abs() < 0.5,
+        "{a} vs {}",
+        chin_angle_deg(pose)
+    );
 }

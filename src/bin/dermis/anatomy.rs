@@ -82,7 +82,11 @@ fn jaw(args: JawArgs) -> CliResult {
                 .muscle_volume_ratio
                 .iter()
                 .copied()
-                .fold(1.0f32, |w, r| if (r - 1.0).abs() > (w - 1.0).abs() { r } else { w }),
+                .fold(1.0f32, |w, r| if (r - 1.0).abs() > (w - 1.0).abs() {
+                    r
+                } else {
+                    w
+                }),
             summary.unresolved_contacts
         );
         for f in summary.files.iter().take(3) {
