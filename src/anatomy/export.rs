@@ -1,9 +1,9 @@
-//! The jaw animation written to files: the ECS jaw scene played with activation rising 0 → 1, every frame handed to an export [`FrameSink`].
+//! The jaw animation written to files: the ECS jaw scene played with activation rising 0 → 1, every frame handed to an export `FrameSink`.
 //!
 //! [`run_jaw_export`] spawns [`spawn_jaw`] (with a skin sleeve over the muscle unless
 //! [`JawExportJob::skin`] is off) in a plain `World`, runs the dermis schedule once per frame
 //! with the muscle's activation at `frame / (frames - 1)`, and writes the skin, the muscle's
-//! outer surface and the three bones through the format's sink (glb, obj, ply or usda; the
+//! outer surface and the three bones through the format's [`FrameSink`](crate::export::FrameSink) (glb, obj, ply or usda; the
 //! sinks write a temporary file and rename it, so no half-written file is left). It returns a
 //! [`JawExportSummary`] with the jaw angle and muscle volume ratio of every frame. This is
 //! `dermis anatomy jaw`.

@@ -1,51 +1,4 @@
 //! Muscles and bones as entities: an [`AnatomyRig`] stepped in [`DermisSystems::Muscles`], its muscles and bones serving as skin colliders.
-//!
-//! # Design
-//!
-//! The muscles and bones of one body are a single coupled particle system: insertion springs
-//! join bone particles to muscle particles, contact pushes muscle particles out of bones and
-//! the bones feel the reaction. Splitting that state over entities would make every step
-//! gather and scatter it, so one **rig entity** owns the whole
-//! [`AnatomySystem`](crate::anatomy::dynamics::AnatomySystem) ([`AnatomyRig`]), and each
-//! muscle and bone is a **child entity** ([`ChildOf`] the rig) that exposes what a user
-//! drives or reads:
-//!
-//! | entity | inputs (you write) | outputs (the systems write) |
-//! |---|---|---|
-//! | rig | [`AnatomyRig::steps_per_frame`] | [`AnatomyDiagnostics`] |
-//! | muscle | [`MuscleActivation`] | [`MuscleState`], [`ColliderState`] (surface vertices) |
-//! | bone | [`BoneTarget`] (kinematic bones) | [`BonePose`], [`ColliderState`] (rigid pose) |
-//!
-//! Muscle and bone entities carry [`Tissue`] and [`ColliderState`] exactly like the colliders
-//! [`spawn_scene`](super::spawn_scene) makes, so the existing [`refresh_colliders`] system
-//! refits a skin's muscle colliders ([`ColliderMesh::set_vertices`]) and moves its bone
-//! colliders ([`ColliderMesh::set_pose`], no refit) in [`DermisSystems::Colliders`], and
-//! [`relax_skins`](super::relax_skins) keeps the skin outside them. Wire a skin to them with
-//! [`SpawnedAnatomy::skin_contact`].
-//!
-//! Each frame, in [`DermisSystems::Muscles`] (chained): [`apply_anatomy_inputs`] copies
-//! activations and kinematic targets into the rig, [`step_anatomy`] runs
-//! [`AnatomyRig::steps_per_frame`] fixed steps (each of the system's fixed substeps), and
-//! [`write_anatomy_outputs`] publishes poses, muscle surfaces and volumes, then
-//! [`follow_bones`] moves the anchors of skins bound to the bones ([`BoneSkinning`]).
-//!
-//! ```
-//! use bevy_ecs::prelude::*;
-//! use dermis::anatomy::scenes::{JawConfig, jaw};
-//! use dermis::ecs::*;
-//!
-//! let scene = jaw(&JawConfig::default()).unwrap();
-//! let mut world = World::new();
-//! let mut schedule = DermisPlugin.build_schedule(&mut world);
-//! let rig = spawn_anatomy(&mut world, scene.system, 5).unwrap();
-//! let muscle = rig.muscles[scene.muscle];
-//! world.get_mut::<MuscleActivation>(muscle).unwrap().0 = 1.0;
-//! for _ in 0..20 {
-//!     schedule.run(&mut world);
-//! }
-//! let jaw_pose = world.get::<BonePose>(rig.bones[scene.jaw]).unwrap();
-//! assert!(jaw_pose.angle_about(glam::Vec3::X) > 0.0, "the jaw opens");
-//! ```
 
 use std::sync::Arc;
 
@@ -99,6 +52,51 @@ pub enum RigError {
 }
 
 /// The muscles-and-bones simulation of one body, owned by the rig entity.
+///
+/// The muscles and bones of one body are a single coupled particle system: insertion springs
+/// join bone particles to muscle particles, contact pushes muscle particles out of bones and
+/// the bones feel the reaction. Splitting that state over entities would make every step
+/// gather and scatter it, so one **rig entity** owns the whole
+/// [`AnatomySystem`] (this component), and each
+/// muscle and bone is a **child entity** ([`ChildOf`] the rig) that exposes what a user
+/// drives or reads:
+///
+/// | entity | inputs (you write) | outputs (the systems write) |
+/// |---|---|---|
+/// | rig | [`AnatomyRig::steps_per_frame`] | [`AnatomyDiagnostics`] |
+/// | muscle | [`MuscleActivation`] | [`MuscleState`], [`ColliderState`] (surface vertices) |
+/// | bone | [`BoneTarget`] (kinematic bones) | [`BonePose`], [`ColliderState`] (rigid pose) |
+///
+/// Muscle and bone entities carry [`Tissue`] and [`ColliderState`] exactly like the colliders
+/// [`spawn_scene`](super::spawn_scene) makes, so the existing [`refresh_colliders`] system
+/// refits a skin's muscle colliders ([`ColliderMesh::set_vertices`]) and moves its bone
+/// colliders ([`ColliderMesh::set_pose`], no refit) in [`DermisSystems::Colliders`], and
+/// [`relax_skins`](super::relax_skins) keeps the skin outside them. Wire a skin to them with
+/// [`SpawnedAnatomy::skin_contact`].
+///
+/// Each frame, in [`DermisSystems::Muscles`] (chained): [`apply_anatomy_inputs`] copies
+/// activations and kinematic targets into the rig, [`step_anatomy`] runs
+/// [`AnatomyRig::steps_per_frame`] fixed steps (each of the system's fixed substeps), and
+/// [`write_anatomy_outputs`] publishes poses, muscle surfaces and volumes, then
+/// [`follow_bones`] moves the anchors of skins bound to the bones ([`BoneSkinning`]).
+///
+/// ```
+/// use bevy_ecs::prelude::*;
+/// use dermis::anatomy::scenes::{JawConfig, jaw};
+/// use dermis::ecs::*;
+///
+/// let scene = jaw(&JawConfig::default()).unwrap();
+/// let mut world = World::new();
+/// let mut schedule = DermisPlugin.build_schedule(&mut world);
+/// let rig = spawn_anatomy(&mut world, scene.system, 5).unwrap();
+/// let muscle = rig.muscles[scene.muscle];
+/// world.get_mut::<MuscleActivation>(muscle).unwrap().0 = 1.0;
+/// for _ in 0..20 {
+///     schedule.run(&mut world);
+/// }
+/// let jaw_pose = world.get::<BonePose>(rig.bones[scene.jaw]).unwrap();
+/// assert!(jaw_pose.angle_about(glam::Vec3::X) > 0.0, "the jaw opens");
+/// ```
 #[derive(Component, Debug, Clone)]
 pub struct AnatomyRig {
     system: AnatomySystem,
@@ -106,6 +104,8 @@ pub struct AnatomyRig {
     /// (each of the config's substeps) run every frame: one frame lasts
     /// `steps_per_frame × dt_s`.
     pub steps_per_frame: u32,
+    /// Kinematic bones to drive this frame: (body, pose at the frame's start, target).
+    pending: Vec<(usize, BonePose, BonePose)>,
 }
 
 impl AnatomyRig {
@@ -213,8 +213,10 @@ impl BonePose {
     }
 }
 
-/// Where a kinematic bone must be at the end of the next frame (rest-relative, as
-/// [`BonePose`]); the rig interpolates over the frame's steps. Ignored on dynamic bones.
+/// Where a kinematic bone must be at the end of every frame (rest-relative, as [`BonePose`]):
+/// each step of the frame moves it a fraction of the way there (slerp and lerp from its pose at
+/// the frame's start), so it arrives with the frame's last step. A target on a dynamic bone is
+/// rejected ([`AnatomyError::NotKinematic`] in [`AnatomyDiagnostics::error`]).
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
 pub struct BoneTarget(pub BonePose);
 
@@ -353,7 +355,7 @@ fn muscle_length(system: &AnatomySystem, muscle: usize) -> Result<f32, AnatomyEr
 }
 
 /// Spawns `system` as a rig entity with a child entity per muscle and per bone (see the
-/// [module docs](self)); `steps_per_frame` fixed steps run every frame.
+/// [`AnatomyRig`] docs); `steps_per_frame` fixed steps run every frame.
 ///
 /// Muscle-bone contacts, insertions and kinematic bones are whatever `system` was built with.
 pub fn spawn_anatomy(
@@ -441,6 +443,7 @@ pub fn spawn_anatomy(
             AnatomyRig {
                 system,
                 steps_per_frame,
+                pending: Vec::new(),
             },
             AnatomyDiagnostics::default(),
         ))
@@ -622,19 +625,32 @@ pub fn apply_anatomy_inputs(
         }
     }
     for (parent, bone, target) in &bones {
-        if bone.kind != BoneKind::Kinematic {
-            continue;
-        }
         let Ok((mut rig, mut diagnostics)) = rigs.get_mut(parent.parent()) else {
             continue;
         };
         let t = target.0;
-        if let Err(e) = rig.bypass_change_detection().system.set_kinematic_pose(
-            bone.index,
-            t.rotation,
-            t.translation,
-        ) {
-            diagnostics.error = Some(e);
+        let rig = rig.bypass_change_detection();
+        // Validated now (bad pose, dynamic body); the frame's steps interpolate towards it.
+        match rig
+            .system
+            .set_kinematic_pose(bone.index, t.rotation, t.translation)
+        {
+            Ok(()) => {
+                let (rotation, translation) = rig
+                    .system
+                    .body(bone.index)
+                    .map_or((Quat::IDENTITY, Vec3::ZERO), |b| b.pose());
+                let start = BonePose {
+                    rotation,
+                    translation,
+                };
+                let end = BonePose {
+                    rotation: t.rotation.normalize(),
+                    translation: t.translation,
+                };
+                rig.pending.push((bone.index, start, end));
+            }
+            Err(e) => diagnostics.error = Some(e),
         }
     }
 }
@@ -645,7 +661,18 @@ pub fn step_anatomy(mut rigs: Query<(&mut AnatomyRig, &mut AnatomyDiagnostics)>)
     for (mut rig, mut diagnostics) in &mut rigs {
         let rig = &mut *rig;
         diagnostics.frames += 1;
-        for _ in 0..rig.steps_per_frame {
+        let n = rig.steps_per_frame;
+        let pending = std::mem::take(&mut rig.pending);
+        for k in 0..n {
+            let alpha = (k + 1) as f32 / n as f32;
+            for (body, start, end) in &pending {
+                let (q, t) = (
+                    start.rotation.slerp(end.rotation, alpha),
+                    start.translation.lerp(end.translation, alpha),
+                );
+                // Validated when the target was applied.
+                let _ = rig.system.set_kinematic_pose(*body, q, t);
+            }
             match rig.system.step() {
                 Ok(()) => diagnostics.steps += 1,
                 Err(e) => {

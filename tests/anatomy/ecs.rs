@@ -438,3 +438,47 @@ fn bone_pose_angle_matches_the_chin_measurement() {
         chin_angle_deg(pose)
     );
 }
+
+/// A kinematic bone driven by a `BoneTarget` arrives at the target with the frame's last step,
+/// whatever the steps per frame; a target on a dynamic bone is an error.
+#[test]
+fn a_kinematic_bone_target_is_reached_at_the_end_of_the_frame() {
+    let target = BonePose {
+        rotation: glam::Quat::from_rotation_y(0.1),
+        translation: Vec3::new(0.0, -0.004, 0.002),
+    };
+    let spine_after = |steps: u32, frames: usize| {
+        let (mut world, mut schedule) = world();
+        let jaw = spawn_jaw(&mut world, &JawConfig::default(), steps, None).unwrap();
+        world.entity_mut(jaw.spine).insert(BoneTarget(target));
+        for _ in 0..frames {
+            schedule.run(&mut world);
+        }
+        assert_eq!(
+            world
+                .get::<AnatomyDiagnostics>(jaw.anatomy.rig)
+                .unwrap()
+                .error,
+            None
+        );
+        *world.get::<BonePose>(jaw.spine).unwrap()
+    };
+    let end = spine_after(6, 1);
+    assert!((end.translation - target.translation).length() < 1e-6);
+    assert!(end.rotation.angle_between(target.rotation) < 1e-4);
+    // Twice the steps per frame, two frames: same arrival, and it stays there.
+    let end2 = spine_after(12, 2);
+    assert!((end2.translation - target.translation).length() < 1e-6);
+    // A target on the dynamic jaw is rejected, not applied.
+    let (mut world, mut schedule) = world();
+    let jaw = spawn_jaw(&mut world, &JawConfig::default(), 2, None).unwrap();
+    world.entity_mut(jaw.jaw).insert(BoneTarget(target));
+    schedule.run(&mut world);
+    assert!(matches!(
+        world
+            .get::<AnatomyDiagnostics>(jaw.anatomy.rig)
+            .unwrap()
+            .error,
+        Some(dermis::anatomy::AnatomyError::NotKinematic { .. })
+    ));
+}
