@@ -840,7 +840,9 @@ impl AnatomySystem {
         }
     }
 
-    /// Projects contact particles out of their bones and removes their velocity into the bone.
+    /// Projects contact particles out of their bones and removes their velocity into the bone;
+    /// a dynamic bone receives the momentum removed (equal and opposite impulse at the contact
+    /// point), so muscle-bone contact conserves linear and angular momentum.
     fn project_contacts(&mut self) {
         for c in &self.contacts {
             let b = &self.bodies[c.bone as usize];
@@ -871,11 +873,23 @@ impl AnatomySystem {
                     None
                 })
                 .collect();
+            // Reaction: the momentum a particle loses into the bone goes to a dynamic bone, as
+            // an impulse at the contact point (summed in particle order: deterministic).
+            let (mut impulse, mut angular) = (Vec3::ZERO, Vec3::ZERO);
             for (&p, m) in c.particles.iter().zip(moved) {
                 if let Some((xp, vp)) = m {
-                    self.x[p as usize] = xp;
-                    self.v[p as usize] = vp;
+                    let p = p as usize;
+                    let j = self.m[p] * (self.v[p] - vp);
+                    impulse += j;
+                    angular += (xp - b.com).cross(j);
+                    self.x[p] = xp;
+                    self.v[p] = vp;
                 }
+            }
+            let b = &mut self.bodies[c.bone as usize];
+            if b.kind == BoneKind::Dynamic {
+                b.velocity += impulse / b.mass;
+                b.angular_momentum += angular;
             }
         }
     }

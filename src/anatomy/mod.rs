@@ -32,6 +32,7 @@
 //! ```
 
 pub mod dynamics;
+pub mod export;
 pub mod lattice;
 pub mod pressure;
 pub mod rigid;

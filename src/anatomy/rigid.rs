@@ -201,6 +201,25 @@ impl RigidBody {
     pub fn particle_position(&self, i: usize) -> Vec3 {
         self.com + self.rotation * self.local[i]
     }
+    /// Number of particles that are vertices of the bone's mesh (the attachments follow them).
+    pub fn mesh_vertex_count(&self) -> usize {
+        self.triangles
+            .iter()
+            .flatten()
+            .max()
+            .map_or(0, |&v| v as usize + 1)
+    }
+    /// Triangles of the bone's mesh, indices within the body's particles.
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+    /// Rest world positions of the bone's mesh vertices: apply [`Self::pose`] to place them.
+    pub fn rest_mesh_vertices(&self) -> Vec<Vec3> {
+        self.local[..self.mesh_vertex_count()]
+            .iter()
+            .map(|l| self.rest_com + *l)
+            .collect()
+    }
     /// Sets the pose from a rest-relative (rotation, translation).
     pub(crate) fn set_pose(&mut self, rotation: Quat, translation: Vec3) {
         self.rotation = rotation.normalize();

@@ -56,6 +56,22 @@ pub fn tube_mesh(
     Ok(TriMesh::new(x, tris)?)
 }
 
+/// An open cylinder (a sleeve) from `a` to `b` of radius `radius_m`: `rings + 1` rings of
+/// `segments` vertices, no caps, normals pointing outwards. Used as a skin over a muscle.
+pub fn sleeve_mesh(
+    a: Vec3,
+    b: Vec3,
+    radius_m: f32,
+    segments: u32,
+    rings: u32,
+) -> Result<TriMesh, AnatomyError> {
+    let closed = tube_mesh(a, b, radius_m, segments, rings)?;
+    let ring_vertices = ((rings + 1) * segments) as usize;
+    let x = closed.positions()[..ring_vertices].to_vec();
+    let tris = closed.triangles()[..(2 * rings * segments) as usize].to_vec();
+    Ok(TriMesh::new(x, tris)?)
+}
+
 /// The surface of the box `[min, max]`, each face split into `subdivisions²` squares (two
 /// triangles each), wound outwards.
 pub fn box_mesh(min: Vec3, max: Vec3, subdivisions: u32) -> Result<TriMesh, AnatomyError> {
@@ -163,6 +179,11 @@ pub struct JawScene {
 }
 
 impl JawScene {
+    /// Where the muscle's axis starts (under the chin) and ends (at the spine), m.
+    pub const MUSCLE_AXIS: [Vec3; 2] = [Vec3::new(0.0, -0.032, 0.07), Vec3::new(0.0, -0.11, -0.04)];
+    /// Rest radius of the muscle surface, m.
+    pub const MUSCLE_RADIUS_M: f32 = 0.01;
+
     /// Hinge axis: positive rotation about it moves the chin down (opens the mouth).
     pub const HINGE_AXIS: Vec3 = Vec3::X;
 
@@ -234,9 +255,9 @@ pub fn jaw(config: &JawConfig) -> Result<JawScene, AnatomyError> {
         )
         .with_kind(BoneKind::Kinematic),
     )?;
-    let (chin, neck) = (Vec3::new(0.0, -0.032, 0.07), Vec3::new(0.0, -0.11, -0.04));
+    let [chin, neck] = JawScene::MUSCLE_AXIS;
     let dir = (neck - chin).normalize();
-    let surface = tube_mesh(chin, neck, 0.01, 24, 12)?;
+    let surface = tube_mesh(chin, neck, JawScene::MUSCLE_RADIUS_M, 24, 12)?;
     let line = [chin + 0.001 * dir, neck - 0.001 * dir];
     let lattice = MuscleLattice::build(&surface, &line, config.muscle)?;
     let muscle = system.add_muscle(&lattice)?;

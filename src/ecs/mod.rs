@@ -6,11 +6,13 @@
 //! skins and colliders played on a fixed clock; [`capture_state`] and [`restore_state`]
 //! checkpoint it.
 
+mod anatomy;
 mod components;
 mod scene;
 mod spawn;
 mod systems;
 
+pub use anatomy::*;
 pub use components::*;
 pub use scene::*;
 pub use spawn::*;
@@ -148,6 +150,7 @@ impl DermisPlugin {
             relax_skins.in_set(DermisSystems::Relax),
         ));
         scene::configure(schedule);
+        anatomy::configure(schedule);
     }
 
     /// Inserts the resources the systems read, keeping any already present:

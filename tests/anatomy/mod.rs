@@ -1,6 +1,8 @@
 //! Acceptance tests of the muscles-and-bones engine (issue 7): each checks the engine against a
 //! closed form or a conservation law.
 
+mod ecs;
+
 use dermis::anatomy::AnatomyError;
 use dermis::anatomy::dynamics::{AnatomySystem, DynamicsConfig};
 use dermis::anatomy::lattice::{MuscleConfig, MuscleLattice};

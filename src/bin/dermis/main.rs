@@ -1,5 +1,6 @@
 //! The `dermis` command line: see `dermis --help`.
 
+mod anatomy;
 mod bench;
 mod equilibrium;
 mod export;
@@ -35,6 +36,9 @@ enum Command {
     /// Reproduce the source papers' experiments.
     #[command(subcommand)]
     Paper(paper::Experiment),
+    /// Simulate a muscles-and-bones scene through the ECS and write its frames (glb, obj, ply, usda).
+    #[command(subcommand)]
+    Anatomy(anatomy::Scene),
     /// Regenerate the bundled arm model (assets/arm.glb) byte-for-byte.
     MakeArm(make_arm::MakeArmArgs),
 }
@@ -52,6 +56,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench::run(args),
         Command::Paper(experiment) => paper::run(experiment),
         Command::MakeArm(args) => make_arm::run(args),
+        Command::Anatomy(scene) => anatomy::run(scene),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
