@@ -5,6 +5,7 @@
 //! noisy machine at different times, compare as ratios.
 
 pub mod arm;
+pub mod peers;
 mod previous;
 
 use std::time::Instant;
@@ -16,8 +17,8 @@ use serde::Serialize;
 use crate::mesh::TriMesh;
 use crate::mesh::shapes::tube;
 use crate::solver::{Loads, RelaxConfig, RelaxReport, SpringSystem, VertexAnchor};
-use arm::{ArmRun, ArmWorkload, CLIP_FRAMES};
 use crate::stiffness::{Modulus, StiffnessRule};
+use arm::{ArmRun, ArmWorkload, CLIP_FRAMES};
 
 /// Bytes the relaxation must stream per vertex and iteration at the least: a position and three
 /// springs (other index, stiffness, rest length, and the neighbour's position) — the figure the
@@ -344,7 +345,10 @@ pub fn shuffled(work: &TubeWorkload) -> (TubeWorkload, Vec<u32>) {
     for (i, &p) in perm.iter().enumerate() {
         rank[p as usize] = i as u32;
     }
-    let positions = perm.iter().map(|&p| work.mesh.positions()[p as usize]).collect();
+    let positions = perm
+        .iter()
+        .map(|&p| work.mesh.positions()[p as usize])
+        .collect();
     let triangles = work
         .mesh
         .triangles()
@@ -368,7 +372,8 @@ pub fn run_arm_workload(
     runs: usize,
 ) -> WorkloadReport {
     let n = work.tube.mesh.positions().len();
-    let mut run = ArmRun::new(work, first_frame, settle_iterations).expect("the bench's inputs are valid");
+    let mut run =
+        ArmRun::new(work, first_frame, settle_iterations).expect("the bench's inputs are valid");
     let mut times = Vec::with_capacity(frames);
     let mut refresh = Vec::with_capacity(frames);
     let (mut iterations, mut substeps, mut passes) = (0u64, 0u64, 0u64);
@@ -399,7 +404,12 @@ pub fn run_arm_workload(
 
     let anchors = work.anchors(work.clip_frames / 2);
     let relax = relax_figures(&work.tube, &anchors, machine, runs);
-    let (t_ordered, _) = thirty(&work.tube.system, work.tube.mesh.positions(), &anchors, runs);
+    let (t_ordered, _) = thirty(
+        &work.tube.system,
+        work.tube.mesh.positions(),
+        &anchors,
+        runs,
+    );
     let (shuffled_tube, perm) = shuffled(&work.tube);
     let shuffled_anchors: Vec<VertexAnchor> = perm.iter().map(|&p| anchors[p as usize]).collect();
     let (t_shuffled, shuffled_report) = thirty(
@@ -606,10 +616,23 @@ impl Plan {
     };
 }
 
+/// The arm workloads of `plan` (`tube-10k`, `tube-100k`), built but not run.
+pub fn arm_workloads(plan: &Plan) -> Vec<ArmWorkload> {
+    ["tube-10k", "tube-100k"]
+        .into_iter()
+        .zip(plan.vertices)
+        .map(|(name, n)| ArmWorkload::new(name, n, plan.muscle, CLIP_FRAMES))
+        .collect()
+}
+
 /// Runs the standard workloads (`tube-10k`, `tube-100k`, `relax-1m`); `quick` runs
 /// [`Plan::QUICK`] (CI, seconds) instead of [`Plan::FULL`].
 pub fn run(quick: bool, progress: impl FnMut(&str)) -> BenchReport {
-    run_plan(if quick { &Plan::QUICK } else { &Plan::FULL }, quick, progress)
+    run_plan(
+        if quick { &Plan::QUICK } else { &Plan::FULL },
+        quick,
+        progress,
+    )
 }
 
 /// Runs the workloads of `plan` (`quick` shortens the calibration).
@@ -618,11 +641,10 @@ pub fn run_plan(plan: &Plan, quick: bool, mut progress: impl FnMut(&str)) -> Ben
     progress("calibrating");
     let machine = calibrate(quick);
     let mut workloads = Vec::new();
-    for (i, name) in ["tube-10k", "tube-100k"].into_iter().enumerate() {
-        progress(name);
-        let work = ArmWorkload::new(name, plan.vertices[i], plan.muscle, CLIP_FRAMES);
+    for (i, work) in arm_workloads(plan).iter().enumerate() {
+        progress(work.tube.name);
         workloads.push(run_arm_workload(
-            &work,
+            work,
             &machine,
             plan.first_frame[i],
             plan.settle_iterations[i],
@@ -655,6 +677,151 @@ mod tests {
         assert!(a.iter().zip(&b).any(|(a, b)| a.target != b.target));
         for (a, p) in a.iter().zip(w.mesh.positions()) {
             assert!((a.target - *p).cross(a.normal).length() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn nearest_rank_quantiles() {
+        let hundred: Vec<f64> = (1..=100).map(f64::from).collect();
+        assert_eq!(quantile(&hundred, 0.99), 99.0);
+        assert_eq!(quantile(&hundred, 0.5), 50.0);
+        assert_eq!(quantile(&[1.0, 2.0, 3.0], 0.5), 2.0);
+        assert_eq!(quantile(&[7.0], 0.99), 7.0);
+        assert!(quantile(&[], 0.5).is_nan());
+    }
+
+    #[test]
+    fn a_shuffled_tube_relaxes_to_the_same_answer() {
+        let work = TubeWorkload::new("t", 3_000);
+        let (shuffled_work, perm) = shuffled(&work);
+        // A true permutation that moved most vertices.
+        let mut seen = vec![false; perm.len()];
+        perm.iter().for_each(|&p| seen[p as usize] = true);
+        assert!(seen.iter().all(|&s| s));
+        assert!(
+            perm.iter()
+                .enumerate()
+                .filter(|&(i, &p)| i as u32 != p)
+                .count()
+                > perm.len() / 2
+        );
+        let anchors = work.anchors(20);
+        let moved: Vec<VertexAnchor> = perm.iter().map(|&p| anchors[p as usize]).collect();
+        let config = RelaxConfig {
+            max_iterations: 30,
+            tolerance: 0.0,
+            stagnation_window: 0,
+            ..RelaxConfig::DEFAULT
+        };
+        let relax = |w: &TubeWorkload, a: &[VertexAnchor]| {
+            let mut x = w.mesh.positions().to_vec();
+            let loads = Loads {
+                anchors: Some(a),
+                ..Default::default()
+            };
+            let r = w.system.relax(&mut x, &loads, &config).unwrap();
+            (x, r.energy)
+        };
+        let (x, e) = relax(&work, &anchors);
+        let (xs, es) = relax(&shuffled_work, &moved);
+        assert!((e - es).abs() <= 1e-6 * e.abs(), "{e} vs {es}");
+        for (i, &p) in perm.iter().enumerate() {
+            assert!(xs[i].distance(x[p as usize]) < 1e-6, "vertex {p}");
+        }
+    }
+
+    #[test]
+    fn the_report_has_every_field_finite_and_the_skin_outside_the_colliders() {
+        let plan = Plan {
+            vertices: [800, 1_200, 1_500],
+            first_frame: [14, 14],
+            settle_iterations: [100, 100],
+            frames: [2, 1, 1],
+            naive_stride: [1, 1],
+            runs: [1, 1, 1],
+            muscle: (20, 32),
+        };
+        let mut stages = Vec::new();
+        let report = run_plan(&plan, true, |s| stages.push(s.to_owned()));
+        assert_eq!(stages, ["calibrating", "tube-10k", "tube-100k", "relax-1m"]);
+        let json = serde_json::to_value(&report).unwrap();
+        let m = &json["machine"];
+        assert!(m["threads"].as_u64().unwrap() >= 1);
+        assert!(m["bandwidth_gb_s"].as_f64().unwrap() > 0.0);
+        assert!(m["spring_ns"].as_f64().unwrap() > 0.0);
+        assert!(json["wall_s"].as_f64().unwrap() > 0.0);
+        let workloads = json["workloads"].as_array().unwrap();
+        let names: Vec<&str> = workloads
+            .iter()
+            .map(|w| w["name"].as_str().unwrap())
+            .collect();
+        assert_eq!(names, ["tube-10k", "tube-100k", "relax-1m"]);
+        let always = [
+            "skin_vertices",
+            "collider_triangles",
+            "frames",
+            "frames_converged",
+            "frame_ms_median",
+            "frame_ms_p99",
+            "iterations_per_frame_mean",
+            "relax_vertex_iterations_per_s",
+            "relax_fraction_of_floor",
+            "bytes_per_vertex",
+            "thread_scaling_2_over_1",
+            "relax_speedup_vs_previous",
+            "previous_energy_after_30",
+            "relax_speedup_vs_naive_scatter",
+            "energy_after_30",
+        ];
+        let contact = [
+            "substeps_per_frame_mean",
+            "collision_passes_per_frame_mean",
+            "collision_us_per_vertex",
+            "collision_naive_us_per_vertex_pass",
+            "collision_speedup_vs_naive",
+            "collider_refresh_ms",
+            "min_clearance_m",
+            "unresolved_max",
+            "shuffled_over_ordered",
+            "shuffled_energy_after_30",
+        ];
+        for (w, vertices) in workloads.iter().zip(plan.vertices) {
+            let arm = w["name"] != "relax-1m";
+            let n = w["skin_vertices"].as_u64().unwrap() as usize;
+            assert!(n.abs_diff(vertices) < vertices / 10, "{n} for {vertices}");
+            for key in always
+                .iter()
+                .chain(arm.then_some(&contact).into_iter().flatten())
+            {
+                let v = w[key].as_f64().unwrap_or(f64::NAN);
+                assert!(
+                    v.is_finite() && v >= 0.0,
+                    "{}: {key} = {}",
+                    w["name"],
+                    w[key]
+                );
+            }
+            if !arm {
+                assert!(contact.iter().all(|k| w[k].is_null()));
+                continue;
+            }
+            assert_eq!(w["collider_triangles"], 2 * 32 * 19);
+            // Contact held: every vertex kept (nearly) the thickness from the analytic shapes.
+            assert!(w["min_clearance_m"].as_f64().unwrap() > 0.5 * f64::from(arm::THICKNESS_M));
+            // Each substep is one pass, each relaxation iteration one more.
+            let passes = w["collision_passes_per_frame_mean"].as_f64().unwrap();
+            let its = w["iterations_per_frame_mean"].as_f64().unwrap();
+            let substeps = w["substeps_per_frame_mean"].as_f64().unwrap();
+            assert!(
+                passes >= its + substeps - 1e-9,
+                "{passes} < {its} + {substeps}"
+            );
+            // The shuffled system reaches the same energy.
+            let (e, es) = (
+                w["energy_after_30"].as_f64().unwrap(),
+                w["shuffled_energy_after_30"].as_f64().unwrap(),
+            );
+            assert!((e - es).abs() <= 1e-6 * e, "{e} vs {es}");
         }
     }
 }

@@ -26,9 +26,7 @@ use rayon::prelude::*;
 
 use super::TubeWorkload;
 use crate::collision::shapes::ellipsoid;
-use crate::collision::{
-    ColliderId, ColliderMesh, CollisionError, ContactConfig, SkinCollision,
-};
+use crate::collision::{ColliderId, ColliderMesh, CollisionError, ContactConfig, SkinCollision};
 use crate::solver::{Loads, Projection, RelaxConfig, RelaxReport, SolverError, VertexAnchor};
 
 /// Height of the elbow's flexion axis along the tube, m.
@@ -123,6 +121,11 @@ impl ArmWorkload {
         self.muscle_triangles.len()
     }
 
+    /// The muscle mesh's triangles (counter-clockwise seen from outside).
+    pub fn muscle_triangles(&self) -> &[[u32; 3]] {
+        &self.muscle_triangles
+    }
+
     /// Flexion fraction `s ∈ [0, 1]` at `frame` (the clip loops).
     pub fn flexion(&self, frame: usize) -> f32 {
         let t = (frame % self.clip_frames) as f32 / self.clip_frames as f32;
@@ -176,8 +179,11 @@ impl ArmWorkload {
             self.muscle_vertices(frame),
             self.muscle_triangles.clone(),
         )?);
-        let humerus =
-            contact.add_collider(ColliderMesh::capsule(HUMERUS.a, HUMERUS.b, HUMERUS.radius_m)?);
+        let humerus = contact.add_collider(ColliderMesh::capsule(
+            HUMERUS.a,
+            HUMERUS.b,
+            HUMERUS.radius_m,
+        )?);
         let ulna = contact.add_collider(
             ColliderMesh::capsule(ULNA.a, ULNA.b, ULNA.radius_m)?
                 .with_pose(self.forearm_pose(frame)),
@@ -206,7 +212,8 @@ impl ArmWorkload {
 fn ecs_force_scale(tube: &TubeWorkload, tolerance: f32) -> f32 {
     let mesh = &tube.mesh;
     let lengths = mesh.edge_lengths();
-    let mean_edge = lengths.iter().map(|&l| f64::from(l)).sum::<f64>() / lengths.len().max(1) as f64;
+    let mean_edge =
+        lengths.iter().map(|&l| f64::from(l)).sum::<f64>() / lengths.len().max(1) as f64;
     let n = mesh.positions().len();
     let anchor_k = f64::from(ANCHOR_K_NORMAL.max(ANCHOR_K_TANGENT));
     let spring_sq: f64 = tube.stiffness.iter().map(|&k| f64::from(k).powi(2)).sum();
@@ -224,7 +231,8 @@ fn ecs_force_scale(tube: &TubeWorkload, tolerance: f32) -> f32 {
         .iter()
         .map(|p| p.abs().max_element())
         .fold(0.0f32, f32::max);
-    let floor = f64::from(f32::EPSILON * x_max) * k_norm / f64::from(tolerance.max(f32::MIN_POSITIVE));
+    let floor =
+        f64::from(f32::EPSILON * x_max) * k_norm / f64::from(tolerance.max(f32::MIN_POSITIVE));
     primary.max(floor) as f32
 }
 
@@ -303,11 +311,7 @@ pub enum ArmError {
 impl ArmRun {
     /// Starts the clip at `frame`: colliders there, the skin at its skinned anchors pushed out
     /// of the colliders and relaxed in contact for at most `settle_iterations` (untimed).
-    pub fn new(
-        work: &ArmWorkload,
-        frame: usize,
-        settle_iterations: u32,
-    ) -> Result<Self, ArmError> {
+    pub fn new(work: &ArmWorkload, frame: usize, settle_iterations: u32) -> Result<Self, ArmError> {
         let (mut contact, ids) = work.collision(frame)?;
         let anchors = work.anchors(frame);
         let mut x: Vec<Vec3> = anchors.iter().map(|a| a.target).collect();
@@ -374,7 +378,11 @@ impl ArmRun {
             self.contact.substep(&mut self.x)?;
             collision += t.elapsed();
             let sub_config = RelaxConfig {
-                max_iterations: if s + 1 == substeps { last } else { intermediate },
+                max_iterations: if s + 1 == substeps {
+                    last
+                } else {
+                    intermediate
+                },
                 ..config
             };
             let mut timed = Timed {
@@ -508,4 +516,3 @@ mod tests {
         }
     }
 }
-
