@@ -81,6 +81,18 @@ pub fn muscle_ellipsoid(s: f32) -> (Vec3, Vec3) {
 }
 
 /// The elbow-flexion scene around one skin tube.
+///
+/// ```
+/// use dermis::bench::arm::{ArmRun, ArmWorkload, THICKNESS_M, analytic_clearance};
+/// // A small arm: 600 skin vertices, a 1,200-triangle muscle, a 12-frame clip.
+/// let work = ArmWorkload::new("small", 600, (16, 40), 12);
+/// assert_eq!(work.muscle_triangle_count(), 2 * 40 * 15);
+/// let mut run = ArmRun::new(&work, 4, 100).unwrap();
+/// let times = run.step(&work).unwrap();
+/// assert!(times.iterations > 0 && times.collision_s > 0.0);
+/// // The skin keeps (about) its thickness from the muscle and the bones.
+/// assert!(analytic_clearance(&work, run.frame, &run.x) > 0.5 * THICKNESS_M);
+/// ```
 #[derive(Debug, Clone)]
 pub struct ArmWorkload {
     /// The skin and its springs.
