@@ -4,6 +4,8 @@
 //! the cost of one spring evaluation), so results from different machines, or from the same
 //! noisy machine at different times, compare as ratios.
 
+pub mod arm;
+pub mod peers;
 mod previous;
 
 use std::time::Instant;
@@ -14,8 +16,9 @@ use serde::Serialize;
 
 use crate::mesh::TriMesh;
 use crate::mesh::shapes::tube;
-use crate::solver::{Loads, RelaxConfig, SpringSystem, VertexAnchor};
+use crate::solver::{Loads, RelaxConfig, RelaxReport, SpringSystem, VertexAnchor};
 use crate::stiffness::{Modulus, StiffnessRule};
+use arm::{ArmRun, ArmWorkload, CLIP_FRAMES};
 
 /// Bytes the relaxation must stream per vertex and iteration at the least: a position and three
 /// springs (other index, stiffness, rest length, and the neighbour's position) — the figure the
@@ -90,7 +93,9 @@ pub struct TubeWorkload {
     pub name: &'static str,
     /// The skin.
     pub mesh: TriMesh,
-    /// Its springs (Eq. 29, `E2` = 1000 N/m).
+    /// Stiffness of each mesh edge (Eq. 29, `E2` = 1000 N/m), N/m.
+    pub stiffness: Vec<f32>,
+    /// Its springs.
     pub system: SpringSystem,
 }
 
@@ -102,12 +107,21 @@ impl TubeWorkload {
             .round() as u32)
             .max(8);
         let along = (vertices as u32).div_ceil(around).max(2);
-        let mesh = tube(around, along, 0.05, 0.4);
-        let k = StiffnessRule::AreaOverLengthSquared
+        Self::from_mesh(name, tube(around, along, 0.05, 0.4))
+    }
+
+    /// The workload of any skin mesh (same material).
+    pub fn from_mesh(name: &'static str, mesh: TriMesh) -> Self {
+        let stiffness = StiffnessRule::AreaOverLengthSquared
             .edge_stiffness(&mesh, &Modulus::Uniform(1000.0))
-            .expect("valid tube");
-        let system = SpringSystem::from_mesh(&mesh, &k).expect("valid springs");
-        Self { name, mesh, system }
+            .expect("a valid mesh");
+        let system = SpringSystem::from_mesh(&mesh, &stiffness).expect("valid springs");
+        Self {
+            name,
+            mesh,
+            stiffness,
+            system,
+        }
     }
 
     /// Anchors of frame `frame`: the body under the skin bulges (a travelling radial wave of
@@ -131,34 +145,68 @@ impl TubeWorkload {
     }
 }
 
-/// One workload's figures.
+/// One workload's figures. Fields that only the arm workloads have (collision, shuffling) are
+/// `null` for `relax-1m`.
 #[derive(Debug, Clone, Serialize)]
 pub struct WorkloadReport {
     /// Workload name.
     pub name: &'static str,
     /// Skin vertices.
     pub skin_vertices: usize,
-    /// Collider triangles (0 until collision is part of the workload).
+    /// Collider triangles (the muscle mesh; the capsule bones have none; 0 without collision).
     pub collider_triangles: usize,
-    /// Median frame time (warm-started relaxation to the default tolerance), ms.
+    /// Frames timed.
+    pub frames: usize,
+    /// Timed frames whose (last) relaxation converged to the default tolerance; the others
+    /// spent the 500-iteration budget or stalled.
+    pub frames_converged: usize,
+    /// Median whole-frame time, ms: for the arm, collider refresh, contact plan, substeps and
+    /// the relaxations in contact to the default tolerance (the ECS's frame); for `relax-1m`,
+    /// a warm-started relaxation under moving anchors.
     pub frame_ms_median: f64,
-    /// 99th-percentile frame time, ms.
+    /// 99th-percentile frame time (the nearest-rank sample; the maximum below 100 frames), ms.
     pub frame_ms_p99: f64,
-    /// Mean relaxation iterations per frame.
+    /// Mean relaxation iterations per frame (summed over substeps).
     pub iterations_per_frame_mean: f64,
-    /// Vertex-iterations per second over a fixed 30-iteration relaxation.
+    /// Mean contact substeps per frame (`null` without collision).
+    pub substeps_per_frame_mean: Option<f64>,
+    /// Mean contact passes per frame: one per substep plus one per accepted relaxation step
+    /// (`null` without collision).
+    pub collision_passes_per_frame_mean: Option<f64>,
+    /// Vertex-iterations per second over a fixed 30-iteration relaxation (no projection).
     pub relax_vertex_iterations_per_s: f64,
     /// The floor time of those iterations (bandwidth- or compute-bound, from the calibration)
     /// over the measured time: 1 would be at the machine's limit.
     pub relax_fraction_of_floor: f64,
-    /// Collision time per skin vertex per frame, µs (`None` until collision is benchmarked).
+    /// Contact time per skin vertex per frame, µs: frame plan, substep passes and the
+    /// projections inside the relaxations, averaged over the timed frames (`null` without
+    /// collision).
     pub collision_us_per_vertex: Option<f64>,
-    /// Collision speed-up over one naive parry query per vertex (`None` until then).
+    /// One naive pass (a parry `project_point` per skin vertex on every collider, parallel),
+    /// µs per vertex, measured on the skin of sampled frames (`null` without collision).
+    pub collision_naive_us_per_vertex_pass: Option<f64>,
+    /// One naive pass over a whole frame's contact work, both on the same sampled frames:
+    /// above 1, the whole frame's contact costs less than one plain query per vertex (`null`
+    /// without collision).
     pub collision_speedup_vs_naive: Option<f64>,
+    /// Median time of the muscle's refit ([`crate::collision::ColliderMesh::set_vertices`]),
+    /// ms, over the timed frames and 8 more refits after them (`null` without collision).
+    pub collider_refresh_ms: Option<f64>,
+    /// Smallest clearance of the skin from the analytic colliders after any timed frame, m
+    /// (the skin thickness when contact holds; `null` without collision).
+    pub min_clearance_m: Option<f64>,
+    /// Most vertices left unresolved by a frame's last contact pass (`null` without collision).
+    pub unresolved_max: Option<usize>,
     /// Bytes of solver state per skin vertex (springs, CSR and the solver's vectors).
     pub bytes_per_vertex: f64,
     /// 30-iteration time on 1 thread over the time on all threads.
     pub thread_scaling_2_over_1: f64,
+    /// 30-iteration time of the same tube with its vertices shuffled before the system was
+    /// built, over the time of the ordered one, all threads (`null` for `relax-1m`).
+    pub shuffled_over_ordered: Option<f64>,
+    /// Energy after those 30 iterations of the shuffled system, J (equal to
+    /// `energy_after_30` up to summation order).
+    pub shuffled_energy_after_30: Option<f64>,
     /// 30-iteration time of the solver before the issue-8 kernels (kept in the bench as a
     /// baseline) over the time of the current one, both on one thread, measured in this run.
     pub relax_speedup_vs_previous: f64,
@@ -173,12 +221,267 @@ pub struct WorkloadReport {
     pub energy_after_30: f64,
 }
 
-/// Runs one workload: `frames` animation frames, then the fixed 30-iteration measurements.
-pub fn run_workload(work: &TubeWorkload, machine: &Machine, frames: usize) -> WorkloadReport {
+/// Figures of the fixed 30-iteration relaxation (no projection) of a workload.
+#[derive(Debug, Clone)]
+struct RelaxFigures {
+    vertex_iterations_per_s: f64,
+    fraction_of_floor: f64,
+    bytes_per_vertex: f64,
+    thread_scaling: f64,
+    speedup_vs_previous: f64,
+    previous_energy: f64,
+    speedup_vs_naive_scatter: f64,
+    energy: f64,
+}
+
+/// Best time of `runs` fixed 30-iteration relaxations from the rest shape, s, and the report.
+fn thirty(
+    system: &SpringSystem,
+    rest: &[Vec3],
+    anchors: &[VertexAnchor],
+    runs: usize,
+) -> (f64, RelaxReport) {
+    let loads = Loads {
+        anchors: Some(anchors),
+        ..Default::default()
+    };
+    let fixed = RelaxConfig {
+        max_iterations: 30,
+        tolerance: 0.0,
+        stagnation_window: 0,
+        ..RelaxConfig::DEFAULT
+    };
+    (0..runs.max(1))
+        .map(|_| {
+            let mut x = rest.to_vec();
+            let t = Instant::now();
+            let r = system.relax(&mut x, &loads, &fixed).expect("finite");
+            (t.elapsed().as_secs_f64(), r)
+        })
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .expect("at least one run")
+}
+
+fn relax_figures(
+    work: &TubeWorkload,
+    anchors: &[VertexAnchor],
+    machine: &Machine,
+    runs: usize,
+) -> RelaxFigures {
+    let n = work.mesh.positions().len();
+    let rest = work.mesh.positions();
+    let (t_all, report) = thirty(&work.system, rest, anchors, runs);
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("a one-thread pool");
+    let (t_one, report_one) = one.install(|| thirty(&work.system, rest, anchors, runs));
+    assert_eq!(
+        report.energy.to_bits(),
+        report_one.energy.to_bits(),
+        "results must not depend on the thread count"
+    );
+    let its = report.iterations.max(1) as f64;
+    let per_iteration = t_all / its;
+    let floor = (n as f64 * MIN_BYTES_PER_VERTEX_ITERATION / (machine.bandwidth_gb_s * 1e9))
+        .max(work.system.edge_count() as f64 * machine.spring_ns * 1e-9);
+    let (t_previous, previous_energy) = one.install(|| {
+        (0..runs.max(1))
+            .map(|_| {
+                let t = Instant::now();
+                let e = previous::relax(&work.system, rest, anchors, 30);
+                (t.elapsed().as_secs_f64(), e)
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .expect("at least one run")
+    });
+    let (t_naive, _) = naive_scatter(work, anchors, if n > 500_000 { 3 } else { 10 });
+    // Solver vectors: x, trial, d, r (4 × 12 B), inverse diagonal and pin (5 B).
+    let vectors = 4.0 * 12.0 + 5.0;
+    RelaxFigures {
+        vertex_iterations_per_s: n as f64 / per_iteration,
+        fraction_of_floor: floor / per_iteration,
+        bytes_per_vertex: work.system.bytes_per_vertex() + vectors,
+        thread_scaling: t_one / t_all,
+        speedup_vs_previous: t_previous / t_one,
+        previous_energy,
+        speedup_vs_naive_scatter: t_naive / (t_one / its),
+        energy: report.energy,
+    }
+}
+
+/// The nearest-rank `q`-quantile of sorted `times`.
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let rank = (q * sorted.len() as f64).ceil() as usize;
+    sorted[rank.clamp(1, sorted.len()) - 1]
+}
+
+fn sorted(mut v: Vec<f64>) -> Vec<f64> {
+    v.sort_by(f64::total_cmp);
+    v
+}
+
+/// The tube with its vertices shuffled (a fixed pseudo-random permutation) before the system
+/// is built, and `perm` with `shuffled[i] = original[perm[i]]`.
+pub fn shuffled(work: &TubeWorkload) -> (TubeWorkload, Vec<u32>) {
+    let n = work.mesh.positions().len();
+    let mut perm: Vec<u32> = (0..n as u32).collect();
+    // Fisher-Yates with a splitmix64 stream (fixed seed: the same shuffle every run).
+    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    let mut next = || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    };
+    for i in (1..n).rev() {
+        perm.swap(i, (next() % (i as u64 + 1)) as usize);
+    }
+    let mut rank = vec![0u32; n];
+    for (i, &p) in perm.iter().enumerate() {
+        rank[p as usize] = i as u32;
+    }
+    let positions = perm
+        .iter()
+        .map(|&p| work.mesh.positions()[p as usize])
+        .collect();
+    let triangles = work
+        .mesh
+        .triangles()
+        .iter()
+        .map(|t| t.map(|v| rank[v as usize]))
+        .collect();
+    let mesh = TriMesh::new(positions, triangles).expect("a permuted valid mesh");
+    (TubeWorkload::from_mesh(work.name, mesh), perm)
+}
+
+/// Runs the arm workload: `frames` timed frames of the clip after `first_frame` (where the
+/// skin is settled untimed for at most `settle_iterations`), with a naive query pass on every `naive_stride`-th frame, then
+/// the fixed 30-iteration measurements and the shuffled-order comparison.
+pub fn run_arm_workload(
+    work: &ArmWorkload,
+    machine: &Machine,
+    first_frame: usize,
+    settle_iterations: u32,
+    frames: usize,
+    naive_stride: usize,
+    runs: usize,
+) -> WorkloadReport {
+    let n = work.tube.mesh.positions().len();
+    let mut run =
+        ArmRun::new(work, first_frame, settle_iterations).expect("the bench's inputs are valid");
+    let mut times = Vec::with_capacity(frames);
+    let mut refresh = Vec::with_capacity(frames);
+    let (mut iterations, mut substeps, mut passes) = (0u64, 0u64, 0u64);
+    let (mut collision_s, mut naive_s, mut sampled_collision_s) = (0.0, 0.0, 0.0);
+    let mut sampled = 0usize;
+    let mut min_clearance = f32::INFINITY;
+    let mut unresolved_max = 0;
+    let mut converged = 0;
+    for f in 0..frames {
+        let t = run.step(work).expect("the bench's inputs are valid");
+        times.push(t.total_s * 1e3);
+        refresh.push(t.refresh_s * 1e3);
+        iterations += u64::from(t.iterations);
+        substeps += u64::from(t.substeps);
+        passes += t.passes;
+        collision_s += t.collision_s;
+        unresolved_max = unresolved_max.max(t.unresolved);
+        converged += usize::from(t.converged);
+        min_clearance = min_clearance.min(arm::analytic_clearance(work, run.frame, &run.x));
+        if f % naive_stride.max(1) == 0 {
+            naive_s += run.naive_pass();
+            sampled_collision_s += t.collision_s;
+            sampled += 1;
+        }
+    }
+    // The refit on its own, a few more times than there are frames (one frame's figure is
+    // noise on this machine): alternate between two shapes of the clip.
+    let shapes = [
+        work.muscle_vertices(run.frame + 1),
+        work.muscle_vertices(run.frame),
+    ];
+    for k in 0..8 {
+        let muscle = run
+            .contact
+            .collider_mut(run.ids.muscle)
+            .expect("the muscle was added");
+        let t = Instant::now();
+        muscle
+            .set_vertices(&shapes[k % 2])
+            .expect("the same vertex count");
+        refresh.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let times = sorted(times);
+    let per_frame = |v: u64| v as f64 / frames.max(1) as f64;
+
+    let anchors = work.anchors(work.clip_frames / 2);
+    let relax = relax_figures(&work.tube, &anchors, machine, runs);
+    let (shuffled_tube, perm) = shuffled(&work.tube);
+    let shuffled_anchors: Vec<VertexAnchor> = perm.iter().map(|&p| anchors[p as usize]).collect();
+    // Interleaved, best of each: the machine's drift hits both alike.
+    let (mut t_ordered, mut t_shuffled) = (f64::INFINITY, f64::INFINITY);
+    let mut shuffled_report = None;
+    for _ in 0..runs.max(3) {
+        let (t, _) = thirty(&work.tube.system, work.tube.mesh.positions(), &anchors, 1);
+        t_ordered = t_ordered.min(t);
+        let (t, r) = thirty(
+            &shuffled_tube.system,
+            shuffled_tube.mesh.positions(),
+            &shuffled_anchors,
+            1,
+        );
+        t_shuffled = t_shuffled.min(t);
+        shuffled_report = Some(r);
+    }
+    let shuffled_report = shuffled_report.expect("at least one run");
+    WorkloadReport {
+        name: work.tube.name,
+        skin_vertices: n,
+        collider_triangles: work.muscle_triangle_count(),
+        frames,
+        frames_converged: converged,
+        frame_ms_median: quantile(&times, 0.5),
+        frame_ms_p99: quantile(&times, 0.99),
+        iterations_per_frame_mean: per_frame(iterations),
+        substeps_per_frame_mean: Some(per_frame(substeps)),
+        collision_passes_per_frame_mean: Some(per_frame(passes)),
+        relax_vertex_iterations_per_s: relax.vertex_iterations_per_s,
+        relax_fraction_of_floor: relax.fraction_of_floor,
+        collision_us_per_vertex: Some(collision_s * 1e6 / (frames.max(1) * n) as f64),
+        collision_naive_us_per_vertex_pass: Some(naive_s * 1e6 / (sampled.max(1) * n) as f64),
+        collision_speedup_vs_naive: Some(naive_s / sampled_collision_s),
+        collider_refresh_ms: Some(quantile(&sorted(refresh), 0.5)),
+        min_clearance_m: Some(f64::from(min_clearance)),
+        unresolved_max: Some(unresolved_max),
+        bytes_per_vertex: relax.bytes_per_vertex,
+        thread_scaling_2_over_1: relax.thread_scaling,
+        shuffled_over_ordered: Some(t_shuffled / t_ordered),
+        shuffled_energy_after_30: Some(shuffled_report.energy),
+        relax_speedup_vs_previous: relax.speedup_vs_previous,
+        previous_energy_after_30: relax.previous_energy,
+        relax_speedup_vs_naive_scatter: relax.speedup_vs_naive_scatter,
+        energy_after_30: relax.energy,
+    }
+}
+
+/// Runs the relaxation-only workload: `frames` warm-started relaxations under the bulging
+/// anchors, then the fixed 30-iteration measurements.
+pub fn run_workload(
+    work: &TubeWorkload,
+    machine: &Machine,
+    frames: usize,
+    runs: usize,
+) -> WorkloadReport {
     let n = work.mesh.positions().len();
     let mut x = work.mesh.positions().to_vec();
     let mut times = Vec::with_capacity(frames);
     let mut iterations = 0u64;
+    let mut converged = 0;
     let config = RelaxConfig::default();
     for frame in 0..frames {
         let anchors = work.anchors(frame + 1);
@@ -193,80 +496,38 @@ pub fn run_workload(work: &TubeWorkload, machine: &Machine, frames: usize) -> Wo
             .relax(&mut x, &loads, &config)
             .expect("benchmark inputs are finite");
         times.push(t.elapsed().as_secs_f64() * 1e3);
-        iterations += report.iterations as u64;
+        iterations += u64::from(report.iterations);
+        converged += usize::from(report.converged());
     }
-    times.sort_by(f64::total_cmp);
-    let pct = |q: f64| times[((times.len() - 1) as f64 * q).round() as usize];
-
-    let anchors = work.anchors(10);
-    let loads = Loads {
-        anchors: Some(&anchors),
-        ..Default::default()
-    };
-    let fixed = RelaxConfig {
-        max_iterations: 30,
-        tolerance: 0.0,
-        stagnation_window: 0,
-        ..RelaxConfig::DEFAULT
-    };
-    let thirty = || {
-        let mut x = work.mesh.positions().to_vec();
-        let t = Instant::now();
-        let r = work.system.relax(&mut x, &loads, &fixed).expect("finite");
-        (t.elapsed().as_secs_f64(), r)
-    };
-    let best = |runs: usize| {
-        (0..runs)
-            .map(|_| thirty())
-            .min_by(|a, b| a.0.total_cmp(&b.0))
-            .expect("at least one run")
-    };
-    let runs = if n > 500_000 { 2 } else { 5 };
-    let (t_all, report) = best(runs);
-    let one = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .expect("a one-thread pool");
-    let (t_one, report_one) = one.install(|| best(runs));
-    assert_eq!(
-        report.energy.to_bits(),
-        report_one.energy.to_bits(),
-        "results must not depend on the thread count"
-    );
-    let its = report.iterations.max(1) as f64;
-    let per_iteration = t_all / its;
-    let floor = (n as f64 * MIN_BYTES_PER_VERTEX_ITERATION / (machine.bandwidth_gb_s * 1e9))
-        .max(work.system.edge_count() as f64 * machine.spring_ns * 1e-9);
-    let (t_previous, previous_energy) = one.install(|| {
-        (0..runs)
-            .map(|_| {
-                let t = Instant::now();
-                let e = previous::relax(&work.system, work.mesh.positions(), &anchors, 30);
-                (t.elapsed().as_secs_f64(), e)
-            })
-            .min_by(|a, b| a.0.total_cmp(&b.0))
-            .expect("at least one run")
-    });
-    let (t_naive, _) = naive_scatter(work, &anchors, if n > 500_000 { 3 } else { 10 });
-    // Solver vectors: x, trial, d, r (4 × 12 B), inverse diagonal and pin (5 B).
-    let vectors = 4.0 * 12.0 + 5.0;
+    let times = sorted(times);
+    let relax = relax_figures(work, &work.anchors(10), machine, runs);
     WorkloadReport {
         name: work.name,
         skin_vertices: n,
         collider_triangles: 0,
-        frame_ms_median: pct(0.5),
-        frame_ms_p99: pct(0.99),
+        frames,
+        frames_converged: converged,
+        frame_ms_median: quantile(&times, 0.5),
+        frame_ms_p99: quantile(&times, 0.99),
         iterations_per_frame_mean: iterations as f64 / frames.max(1) as f64,
-        relax_vertex_iterations_per_s: n as f64 / per_iteration,
-        relax_fraction_of_floor: floor / per_iteration,
+        substeps_per_frame_mean: None,
+        collision_passes_per_frame_mean: None,
+        relax_vertex_iterations_per_s: relax.vertex_iterations_per_s,
+        relax_fraction_of_floor: relax.fraction_of_floor,
         collision_us_per_vertex: None,
+        collision_naive_us_per_vertex_pass: None,
         collision_speedup_vs_naive: None,
-        bytes_per_vertex: work.system.bytes_per_vertex() + vectors,
-        thread_scaling_2_over_1: t_one / t_all,
-        relax_speedup_vs_previous: t_previous / t_one,
-        previous_energy_after_30: previous_energy,
-        relax_speedup_vs_naive_scatter: t_naive / (t_one / its),
-        energy_after_30: report.energy,
+        collider_refresh_ms: None,
+        min_clearance_m: None,
+        unresolved_max: None,
+        bytes_per_vertex: relax.bytes_per_vertex,
+        thread_scaling_2_over_1: relax.thread_scaling,
+        shuffled_over_ordered: None,
+        shuffled_energy_after_30: None,
+        relax_speedup_vs_previous: relax.speedup_vs_previous,
+        previous_energy_after_30: relax.previous_energy,
+        relax_speedup_vs_naive_scatter: relax.speedup_vs_naive_scatter,
+        energy_after_30: relax.energy,
     }
 }
 
@@ -280,9 +541,7 @@ pub fn naive_scatter(
     iterations: usize,
 ) -> (f64, Vec<Vec3>) {
     let mesh = &work.mesh;
-    let k = StiffnessRule::AreaOverLengthSquared
-        .edge_stiffness(mesh, &Modulus::Uniform(1000.0))
-        .expect("valid tube");
+    let k = &work.stiffness;
     let rest = mesh.edge_lengths();
     let edges: Vec<(u32, u32, f32, f32)> = mesh
         .topology()
@@ -329,35 +588,100 @@ pub fn naive_scatter(
 pub struct BenchReport {
     /// The calibration.
     pub machine: Machine,
+    /// Wall time of the whole run, s.
+    pub wall_s: f64,
     /// One entry per workload.
     pub workloads: Vec<WorkloadReport>,
 }
 
-/// Runs the standard workloads (`tube-10k`, `tube-100k`, `relax-1m`); `quick` shrinks frame
-/// counts and sizes so CI can run it in seconds.
-pub fn run(quick: bool, mut progress: impl FnMut(&str)) -> BenchReport {
+/// Sizes and frame counts of one `dermis bench` run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Plan {
+    /// Skin vertices of `tube-10k`, `tube-100k` and `relax-1m`.
+    pub vertices: [usize; 3],
+    /// The clip frame the skin is settled at before the timed frames (`tube-10k`,
+    /// `tube-100k`; the clip has [`CLIP_FRAMES`] frames, full flexion at half of them).
+    pub first_frame: [usize; 2],
+    /// Most relaxation iterations of the untimed settling at `first_frame`.
+    pub settle_iterations: [u32; 2],
+    /// Timed frames of each.
+    pub frames: [usize; 3],
+    /// A naive query pass every this many frames (`tube-10k`, `tube-100k`).
+    pub naive_stride: [usize; 2],
+    /// Repetitions of the fixed 30-iteration measurements (the best counts).
+    pub runs: [usize; 3],
+    /// Muscle resolution (latitude bands, longitude sectors): 126 × 200 is 50,000 triangles.
+    pub muscle: (u32, u32),
+}
+
+impl Plan {
+    /// The full run (under two minutes on the 2-core reference machine).
+    pub const FULL: Self = Self {
+        vertices: [10_000, 100_000, 1_000_000],
+        first_frame: [12, 14],
+        settle_iterations: [500, 100],
+        frames: [10, 1, 1],
+        naive_stride: [2, 1],
+        runs: [5, 2, 1],
+        muscle: (126, 200),
+    };
+    /// The CI run: the same tube-10k scene over a shorter stretch of the clip, smaller others.
+    pub const QUICK: Self = Self {
+        vertices: [10_000, 30_000, 200_000],
+        first_frame: [18, 18],
+        settle_iterations: [200, 100],
+        frames: [4, 1, 1],
+        naive_stride: [2, 1],
+        runs: [3, 2, 1],
+        muscle: (126, 200),
+    };
+}
+
+/// The arm workloads of `plan` (`tube-10k`, `tube-100k`), built but not run.
+pub fn arm_workloads(plan: &Plan) -> Vec<ArmWorkload> {
+    ["tube-10k", "tube-100k"]
+        .into_iter()
+        .zip(plan.vertices)
+        .map(|(name, n)| ArmWorkload::new(name, n, plan.muscle, CLIP_FRAMES))
+        .collect()
+}
+
+/// Runs the standard workloads (`tube-10k`, `tube-100k`, `relax-1m`); `quick` runs
+/// [`Plan::QUICK`] (CI, seconds) instead of [`Plan::FULL`].
+pub fn run(quick: bool, progress: impl FnMut(&str)) -> BenchReport {
+    run_plan(
+        if quick { &Plan::QUICK } else { &Plan::FULL },
+        quick,
+        progress,
+    )
+}
+
+/// Runs the workloads of `plan` (`quick` shortens the calibration).
+pub fn run_plan(plan: &Plan, quick: bool, mut progress: impl FnMut(&str)) -> BenchReport {
+    let start = Instant::now();
     progress("calibrating");
     let machine = calibrate(quick);
-    let sizes: [(&'static str, usize, usize); 3] = if quick {
-        [
-            ("tube-10k", 10_000, 10),
-            ("tube-100k", 100_000, 3),
-            ("relax-1m", 200_000, 1),
-        ]
-    } else {
-        [
-            ("tube-10k", 10_000, 60),
-            ("tube-100k", 100_000, 20),
-            ("relax-1m", 1_000_000, 3),
-        ]
-    };
     let mut workloads = Vec::new();
-    for (name, vertices, frames) in sizes {
-        progress(name);
-        let work = TubeWorkload::new(name, vertices);
-        workloads.push(run_workload(&work, &machine, frames));
+    for (i, work) in arm_workloads(plan).iter().enumerate() {
+        progress(work.tube.name);
+        workloads.push(run_arm_workload(
+            work,
+            &machine,
+            plan.first_frame[i],
+            plan.settle_iterations[i],
+            plan.frames[i],
+            plan.naive_stride[i],
+            plan.runs[i],
+        ));
     }
-    BenchReport { machine, workloads }
+    progress("relax-1m");
+    let work = TubeWorkload::new("relax-1m", plan.vertices[2]);
+    workloads.push(run_workload(&work, &machine, plan.frames[2], plan.runs[2]));
+    BenchReport {
+        machine,
+        wall_s: start.elapsed().as_secs_f64(),
+        workloads,
+    }
 }
 
 #[cfg(test)]
@@ -374,6 +698,151 @@ mod tests {
         assert!(a.iter().zip(&b).any(|(a, b)| a.target != b.target));
         for (a, p) in a.iter().zip(w.mesh.positions()) {
             assert!((a.target - *p).cross(a.normal).length() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn nearest_rank_quantiles() {
+        let hundred: Vec<f64> = (1..=100).map(f64::from).collect();
+        assert_eq!(quantile(&hundred, 0.99), 99.0);
+        assert_eq!(quantile(&hundred, 0.5), 50.0);
+        assert_eq!(quantile(&[1.0, 2.0, 3.0], 0.5), 2.0);
+        assert_eq!(quantile(&[7.0], 0.99), 7.0);
+        assert!(quantile(&[], 0.5).is_nan());
+    }
+
+    #[test]
+    fn a_shuffled_tube_relaxes_to_the_same_answer() {
+        let work = TubeWorkload::new("t", 3_000);
+        let (shuffled_work, perm) = shuffled(&work);
+        // A true permutation that moved most vertices.
+        let mut seen = vec![false; perm.len()];
+        perm.iter().for_each(|&p| seen[p as usize] = true);
+        assert!(seen.iter().all(|&s| s));
+        assert!(
+            perm.iter()
+                .enumerate()
+                .filter(|&(i, &p)| i as u32 != p)
+                .count()
+                > perm.len() / 2
+        );
+        let anchors = work.anchors(20);
+        let moved: Vec<VertexAnchor> = perm.iter().map(|&p| anchors[p as usize]).collect();
+        let config = RelaxConfig {
+            max_iterations: 30,
+            tolerance: 0.0,
+            stagnation_window: 0,
+            ..RelaxConfig::DEFAULT
+        };
+        let relax = |w: &TubeWorkload, a: &[VertexAnchor]| {
+            let mut x = w.mesh.positions().to_vec();
+            let loads = Loads {
+                anchors: Some(a),
+                ..Default::default()
+            };
+            let r = w.system.relax(&mut x, &loads, &config).unwrap();
+            (x, r.energy)
+        };
+        let (x, e) = relax(&work, &anchors);
+        let (xs, es) = relax(&shuffled_work, &moved);
+        assert!((e - es).abs() <= 1e-6 * e.abs(), "{e} vs {es}");
+        for (i, &p) in perm.iter().enumerate() {
+            assert!(xs[i].distance(x[p as usize]) < 1e-6, "vertex {p}");
+        }
+    }
+
+    #[test]
+    fn the_report_has_every_field_finite_and_the_skin_outside_the_colliders() {
+        let plan = Plan {
+            vertices: [800, 1_200, 1_500],
+            first_frame: [14, 14],
+            settle_iterations: [100, 100],
+            frames: [2, 1, 1],
+            naive_stride: [1, 1],
+            runs: [1, 1, 1],
+            muscle: (20, 32),
+        };
+        let mut stages = Vec::new();
+        let report = run_plan(&plan, true, |s| stages.push(s.to_owned()));
+        assert_eq!(stages, ["calibrating", "tube-10k", "tube-100k", "relax-1m"]);
+        let json = serde_json::to_value(&report).unwrap();
+        let m = &json["machine"];
+        assert!(m["threads"].as_u64().unwrap() >= 1);
+        assert!(m["bandwidth_gb_s"].as_f64().unwrap() > 0.0);
+        assert!(m["spring_ns"].as_f64().unwrap() > 0.0);
+        assert!(json["wall_s"].as_f64().unwrap() > 0.0);
+        let workloads = json["workloads"].as_array().unwrap();
+        let names: Vec<&str> = workloads
+            .iter()
+            .map(|w| w["name"].as_str().unwrap())
+            .collect();
+        assert_eq!(names, ["tube-10k", "tube-100k", "relax-1m"]);
+        let always = [
+            "skin_vertices",
+            "collider_triangles",
+            "frames",
+            "frames_converged",
+            "frame_ms_median",
+            "frame_ms_p99",
+            "iterations_per_frame_mean",
+            "relax_vertex_iterations_per_s",
+            "relax_fraction_of_floor",
+            "bytes_per_vertex",
+            "thread_scaling_2_over_1",
+            "relax_speedup_vs_previous",
+            "previous_energy_after_30",
+            "relax_speedup_vs_naive_scatter",
+            "energy_after_30",
+        ];
+        let contact = [
+            "substeps_per_frame_mean",
+            "collision_passes_per_frame_mean",
+            "collision_us_per_vertex",
+            "collision_naive_us_per_vertex_pass",
+            "collision_speedup_vs_naive",
+            "collider_refresh_ms",
+            "min_clearance_m",
+            "unresolved_max",
+            "shuffled_over_ordered",
+            "shuffled_energy_after_30",
+        ];
+        for (w, vertices) in workloads.iter().zip(plan.vertices) {
+            let arm = w["name"] != "relax-1m";
+            let n = w["skin_vertices"].as_u64().unwrap() as usize;
+            assert!(n.abs_diff(vertices) < vertices / 10, "{n} for {vertices}");
+            for key in always
+                .iter()
+                .chain(arm.then_some(&contact).into_iter().flatten())
+            {
+                let v = w[key].as_f64().unwrap_or(f64::NAN);
+                assert!(
+                    v.is_finite() && v >= 0.0,
+                    "{}: {key} = {}",
+                    w["name"],
+                    w[key]
+                );
+            }
+            if !arm {
+                assert!(contact.iter().all(|k| w[k].is_null()));
+                continue;
+            }
+            assert_eq!(w["collider_triangles"], 2 * 32 * 19);
+            // Contact held: every vertex kept (nearly) the thickness from the analytic shapes.
+            assert!(w["min_clearance_m"].as_f64().unwrap() > 0.5 * f64::from(arm::THICKNESS_M));
+            // Each substep is one pass, each relaxation iteration one more.
+            let passes = w["collision_passes_per_frame_mean"].as_f64().unwrap();
+            let its = w["iterations_per_frame_mean"].as_f64().unwrap();
+            let substeps = w["substeps_per_frame_mean"].as_f64().unwrap();
+            assert!(
+                passes >= its + substeps - 1e-9,
+                "{passes} < {its} + {substeps}"
+            );
+            // The shuffled system reaches the same energy.
+            let (e, es) = (
+                w["energy_after_30"].as_f64().unwrap(),
+                w["shuffled_energy_after_30"].as_f64().unwrap(),
+            );
+            assert!((e - es).abs() <= 1e-6 * e, "{e} vs {es}");
         }
     }
 }

@@ -1,6 +1,9 @@
 //! `dermis bench`: the standard workloads, with an in-run calibration.
 
 use std::io::IsTerminal;
+use std::path::PathBuf;
+
+use dermis::bench::{Plan, arm_workloads, peers};
 
 use crate::CliResult;
 
@@ -12,9 +15,20 @@ pub struct Args {
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
+    /// Write the workloads' skin tubes (`tube-10k.obj`, `tube-100k.obj`) and the muscle at full
+    /// flexion (`muscle.obj`) into this folder for `benches/peers/`, and exit.
+    #[arg(long, value_name = "DIR")]
+    write_mesh: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> CliResult {
+    if let Some(dir) = &args.write_mesh {
+        let plan = if args.quick { Plan::QUICK } else { Plan::FULL };
+        for path in peers::write_peer_files(dir, &arm_workloads(&plan))? {
+            println!("{}", path.display());
+        }
+        return Ok(());
+    }
     let chatty = std::io::stderr().is_terminal();
     let report = dermis::bench::run(args.quick, |stage| {
         if chatty {
@@ -27,38 +41,56 @@ pub fn run(args: Args) -> CliResult {
     }
     let m = &report.machine;
     println!(
-        "machine: {} threads, triad {:.1} GB/s, spring {:.2} ns",
-        m.threads, m.bandwidth_gb_s, m.spring_ns
+        "machine: {} threads, triad {:.1} GB/s, spring {:.2} ns; run took {:.0} s",
+        m.threads, m.bandwidth_gb_s, m.spring_ns, report.wall_s
     );
     println!(
-        "{:<10} {:>9} {:>9} {:>9} {:>7} {:>12} {:>7} {:>7} {:>8} {:>9} {:>8}",
+        "{:<10} {:>8} {:>7} {:>9} {:>9} {:>6} {:>11} {:>6} {:>5} {:>7} {:>7} {:>7} {:>6} {:>6} {:>6} {:>6}",
         "workload",
         "vertices",
+        "frames",
         "frame ms",
         "p99 ms",
         "its",
         "Mvert-it/s",
         "floor",
         "2/1",
+        "coll us",
+        "vs qry",
+        "refit",
+        "shuf",
         "B/vert",
-        "vs naive",
-        "vs prev"
+        "vs nv",
+        "vs prv"
     );
+    let opt = |v: Option<f64>, digits: usize| {
+        v.map_or_else(|| "-".to_owned(), |v| format!("{v:.digits$}"))
+    };
     for w in &report.workloads {
         println!(
-            "{:<10} {:>9} {:>9.2} {:>9.2} {:>7.1} {:>12.1} {:>7.3} {:>7.2} {:>8.1} {:>9.2} {:>8.2}",
+            "{:<10} {:>8} {:>7} {:>9.1} {:>9.1} {:>6.0} {:>11.1} {:>6.3} {:>5.2} {:>7} {:>7} {:>7} {:>6} {:>6.1} {:>6.2} {:>6.2}",
             w.name,
             w.skin_vertices,
+            format!("{}/{}", w.frames_converged, w.frames),
             w.frame_ms_median,
             w.frame_ms_p99,
             w.iterations_per_frame_mean,
             w.relax_vertex_iterations_per_s / 1e6,
             w.relax_fraction_of_floor,
             w.thread_scaling_2_over_1,
+            opt(w.collision_us_per_vertex, 2),
+            opt(w.collision_speedup_vs_naive, 2),
+            opt(w.collider_refresh_ms, 2),
+            opt(w.shuffled_over_ordered, 2),
             w.bytes_per_vertex,
             w.relax_speedup_vs_naive_scatter,
             w.relax_speedup_vs_previous
         );
     }
+    println!(
+        "frames: converged/timed; coll us: contact µs per skin vertex per frame; vs qry: one naive \
+         parry query per vertex over a frame's contact; refit: muscle refit ms; shuf: shuffled / \
+         ordered time"
+    );
     Ok(())
 }
