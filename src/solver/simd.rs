@@ -1,0 +1,652 @@
+//! Eight-lane force and curvature kernels over the sliced springs: AVX2 when the CPU has it
+//! (checked at run time), otherwise a portable path with bit-identical results.
+//!
+//! Both paths run the same generic code over a [`Lanes`] implementation, lane by lane the same
+//! IEEE operations in the same order (no fused multiply-add, no approximate reciprocals), so the
+//! results do not depend on the CPU; and they are the operations of the plain per-vertex loop
+//! over CSR springs, so they do not depend on the layout either.
+#![expect(
+    unsafe_code,
+    reason = "AVX2 intrinsics and gathers from raw pointers behind a run-time CPU check; every \
+              gathered index is below the vertex count, asserted per chunk"
+)]
+
+use std::mem::{offset_of, size_of};
+
+use glam::Vec3;
+
+use super::VertexAnchor;
+use super::kernels::Sums;
+use super::sell::{LANES, Sell};
+
+/// Eight lanes of f32 (and f64) arithmetic.
+pub(crate) trait Lanes: Copy {
+    /// Eight f32.
+    type F: Copy;
+    /// Eight u32 indices.
+    type I: Copy;
+    /// Eight lane flags.
+    type M: Copy;
+    /// Eight f64.
+    type D: Copy;
+    fn splat(self, v: f32) -> Self::F;
+    fn load(self, p: &[f32]) -> Self::F;
+    fn load_i(self, p: &[u32]) -> Self::I;
+    /// `base[idx[l]]` per lane.
+    ///
+    /// # Safety
+    /// Every `base + idx[l]` must be in bounds of one allocation.
+    unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F;
+    /// `3 i` per lane.
+    fn times3(self, i: Self::I) -> Self::I;
+    /// `8 i` per lane.
+    fn times8(self, i: Self::I) -> Self::I;
+    fn add(self, a: Self::F, b: Self::F) -> Self::F;
+    fn sub(self, a: Self::F, b: Self::F) -> Self::F;
+    fn mul(self, a: Self::F, b: Self::F) -> Self::F;
+    fn div(self, a: Self::F, b: Self::F) -> Self::F;
+    fn sqrt(self, a: Self::F) -> Self::F;
+    /// `a > b ? a : b` (the second operand when either is NaN).
+    fn max(self, a: Self::F, b: Self::F) -> Self::F;
+    fn neg(self, a: Self::F) -> Self::F;
+    fn gt(self, a: Self::F, b: Self::F) -> Self::M;
+    fn le(self, a: Self::F, b: Self::F) -> Self::M;
+    /// `a > b` per lane (indices below 2³¹).
+    fn gt_i(self, a: Self::I, b: Self::I) -> Self::M;
+    /// `m ? a : b` per lane.
+    fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F;
+    fn store(self, a: Self::F) -> [f32; 8];
+    fn widen(self, a: Self::F) -> Self::D;
+    fn dsplat(self, v: f64) -> Self::D;
+    fn dadd(self, a: Self::D, b: Self::D) -> Self::D;
+    fn dsub(self, a: Self::D, b: Self::D) -> Self::D;
+    fn dmul(self, a: Self::D, b: Self::D) -> Self::D;
+    fn dselect(self, m: Self::M, a: Self::D, b: Self::D) -> Self::D;
+    fn dstore(self, a: Self::D) -> [f64; 8];
+}
+
+/// The portable lanes: plain arrays.
+#[derive(Clone, Copy)]
+pub(crate) struct Scalar;
+
+impl Lanes for Scalar {
+    type F = [f32; 8];
+    type I = [u32; 8];
+    type M = [bool; 8];
+    type D = [f64; 8];
+    #[inline(always)]
+    fn splat(self, v: f32) -> Self::F {
+        [v; 8]
+    }
+    #[inline(always)]
+    fn load(self, p: &[f32]) -> Self::F {
+        std::array::from_fn(|l| p[l])
+    }
+    #[inline(always)]
+    fn load_i(self, p: &[u32]) -> Self::I {
+        std::array::from_fn(|l| p[l])
+    }
+    #[inline(always)]
+    unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
+        // SAFETY: the caller guarantees every index is in bounds.
+        std::array::from_fn(|l| unsafe { *base.add(idx[l] as usize) })
+    }
+    #[inline(always)]
+    fn times3(self, i: Self::I) -> Self::I {
+        i.map(|i| i.wrapping_mul(3))
+    }
+    #[inline(always)]
+    fn times8(self, i: Self::I) -> Self::I {
+        i.map(|i| i.wrapping_mul(8))
+    }
+    #[inline(always)]
+    fn add(self, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| a[l] + b[l])
+    }
+    #[inline(always)]
+    fn sub(self, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| a[l] - b[l])
+    }
+    #[inline(always)]
+    fn mul(self, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| a[l] * b[l])
+    }
+    #[inline(always)]
+    fn div(self, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| a[l] / b[l])
+    }
+    #[inline(always)]
+    fn sqrt(self, a: Self::F) -> Self::F {
+        a.map(f32::sqrt)
+    }
+    #[inline(always)]
+    fn max(self, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| if a[l] > b[l] { a[l] } else { b[l] })
+    }
+    #[inline(always)]
+    fn neg(self, a: Self::F) -> Self::F {
+        a.map(|a| -a)
+    }
+    #[inline(always)]
+    fn gt(self, a: Self::F, b: Self::F) -> Self::M {
+        std::array::from_fn(|l| a[l] > b[l])
+    }
+    #[inline(always)]
+    fn le(self, a: Self::F, b: Self::F) -> Self::M {
+        std::array::from_fn(|l| a[l] <= b[l])
+    }
+    #[inline(always)]
+    fn gt_i(self, a: Self::I, b: Self::I) -> Self::M {
+        std::array::from_fn(|l| (a[l] as i32) > (b[l] as i32))
+    }
+    #[inline(always)]
+    fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| if m[l] { a[l] } else { b[l] })
+    }
+    #[inline(always)]
+    fn store(self, a: Self::F) -> [f32; 8] {
+        a
+    }
+    #[inline(always)]
+    fn widen(self, a: Self::F) -> Self::D {
+        a.map(f64::from)
+    }
+    #[inline(always)]
+    fn dsplat(self, v: f64) -> Self::D {
+        [v; 8]
+    }
+    #[inline(always)]
+    fn dadd(self, a: Self::D, b: Self::D) -> Self::D {
+        std::array::from_fn(|l| a[l] + b[l])
+    }
+    #[inline(always)]
+    fn dsub(self, a: Self::D, b: Self::D) -> Self::D {
+        std::array::from_fn(|l| a[l] - b[l])
+    }
+    #[inline(always)]
+    fn dmul(self, a: Self::D, b: Self::D) -> Self::D {
+        std::array::from_fn(|l| a[l] * b[l])
+    }
+    #[inline(always)]
+    fn dselect(self, m: Self::M, a: Self::D, b: Self::D) -> Self::D {
+        std::array::from_fn(|l| if m[l] { a[l] } else { b[l] })
+    }
+    #[inline(always)]
+    fn dstore(self, a: Self::D) -> [f64; 8] {
+        a
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use std::arch::x86_64::*;
+
+    /// AVX2 lanes; only constructed after `is_x86_feature_detected!("avx2")`, and only used
+    /// inside `#[target_feature(enable = "avx2")]` functions (every method is inlined there).
+    #[derive(Clone, Copy)]
+    pub(crate) struct Avx2;
+
+    impl super::Lanes for Avx2 {
+        type F = __m256;
+        type I = __m256i;
+        type M = __m256;
+        type D = (__m256d, __m256d);
+        #[inline(always)]
+        fn splat(self, v: f32) -> Self::F {
+            unsafe { _mm256_set1_ps(v) }
+        }
+        #[inline(always)]
+        fn load(self, p: &[f32]) -> Self::F {
+            assert!(p.len() >= 8);
+            // SAFETY: eight values in bounds (asserted).
+            unsafe { _mm256_loadu_ps(p.as_ptr()) }
+        }
+        #[inline(always)]
+        fn load_i(self, p: &[u32]) -> Self::I {
+            assert!(p.len() >= 8);
+            // SAFETY: eight values in bounds (asserted).
+            unsafe { _mm256_loadu_si256(p.as_ptr().cast()) }
+        }
+        #[inline(always)]
+        unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
+            // SAFETY: the caller guarantees every index is in bounds.
+            unsafe { _mm256_i32gather_ps::<4>(base, idx) }
+        }
+        #[inline(always)]
+        fn times3(self, i: Self::I) -> Self::I {
+            unsafe { _mm256_add_epi32(i, _mm256_add_epi32(i, i)) }
+        }
+        #[inline(always)]
+        fn times8(self, i: Self::I) -> Self::I {
+            unsafe { _mm256_slli_epi32::<3>(i) }
+        }
+        #[inline(always)]
+        fn add(self, a: Self::F, b: Self::F) -> Self::F {
+            unsafe { _mm256_add_ps(a, b) }
+        }
+        #[inline(always)]
+        fn sub(self, a: Self::F, b: Self::F) -> Self::F {
+            unsafe { _mm256_sub_ps(a, b) }
+        }
+        #[inline(always)]
+        fn mul(self, a: Self::F, b: Self::F) -> Self::F {
+            unsafe { _mm256_mul_ps(a, b) }
+        }
+        #[inline(always)]
+        fn div(self, a: Self::F, b: Self::F) -> Self::F {
+            unsafe { _mm256_div_ps(a, b) }
+        }
+        #[inline(always)]
+        fn sqrt(self, a: Self::F) -> Self::F {
+            unsafe { _mm256_sqrt_ps(a) }
+        }
+        #[inline(always)]
+        fn max(self, a: Self::F, b: Self::F) -> Self::F {
+            // maxps returns its second operand unless the first is greater.
+            unsafe { _mm256_max_ps(a, b) }
+        }
+        #[inline(always)]
+        fn neg(self, a: Self::F) -> Self::F {
+            unsafe { _mm256_xor_ps(a, _mm256_set1_ps(-0.0)) }
+        }
+        #[inline(always)]
+        fn gt(self, a: Self::F, b: Self::F) -> Self::M {
+            unsafe { _mm256_cmp_ps::<_CMP_GT_OQ>(a, b) }
+        }
+        #[inline(always)]
+        fn le(self, a: Self::F, b: Self::F) -> Self::M {
+            unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(a, b) }
+        }
+        #[inline(always)]
+        fn gt_i(self, a: Self::I, b: Self::I) -> Self::M {
+            unsafe { _mm256_castsi256_ps(_mm256_cmpgt_epi32(a, b)) }
+        }
+        #[inline(always)]
+        fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
+            unsafe { _mm256_blendv_ps(b, a, m) }
+        }
+        #[inline(always)]
+        fn store(self, a: Self::F) -> [f32; 8] {
+            let mut out = [0.0f32; 8];
+            // SAFETY: eight floats of room.
+            unsafe { _mm256_storeu_ps(out.as_mut_ptr(), a) };
+            out
+        }
+        #[inline(always)]
+        fn widen(self, a: Self::F) -> Self::D {
+            unsafe {
+                (
+                    _mm256_cvtps_pd(_mm256_castps256_ps128(a)),
+                    _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(a)),
+                )
+            }
+        }
+        #[inline(always)]
+        fn dsplat(self, v: f64) -> Self::D {
+            unsafe { (_mm256_set1_pd(v), _mm256_set1_pd(v)) }
+        }
+        #[inline(always)]
+        fn dadd(self, a: Self::D, b: Self::D) -> Self::D {
+            unsafe { (_mm256_add_pd(a.0, b.0), _mm256_add_pd(a.1, b.1)) }
+        }
+        #[inline(always)]
+        fn dsub(self, a: Self::D, b: Self::D) -> Self::D {
+            unsafe { (_mm256_sub_pd(a.0, b.0), _mm256_sub_pd(a.1, b.1)) }
+        }
+        #[inline(always)]
+        fn dmul(self, a: Self::D, b: Self::D) -> Self::D {
+            unsafe { (_mm256_mul_pd(a.0, b.0), _mm256_mul_pd(a.1, b.1)) }
+        }
+        #[inline(always)]
+        fn dselect(self, m: Self::M, a: Self::D, b: Self::D) -> Self::D {
+            unsafe {
+                let m = _mm256_castps_si256(m);
+                let lo = _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_castsi256_si128(m)));
+                let hi =
+                    _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_extracti128_si256::<1>(m)));
+                (_mm256_blendv_pd(b.0, a.0, lo), _mm256_blendv_pd(b.1, a.1, hi))
+            }
+        }
+        #[inline(always)]
+        fn dstore(self, a: Self::D) -> [f64; 8] {
+            let mut out = [0.0f64; 8];
+            // SAFETY: eight doubles of room.
+            unsafe {
+                _mm256_storeu_pd(out.as_mut_ptr(), a.0);
+                _mm256_storeu_pd(out.as_mut_ptr().add(4), a.1);
+            }
+            out
+        }
+    }
+}
+
+/// Which lanes the kernels run on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Isa {
+    /// Portable arrays.
+    Scalar,
+    /// AVX2 (x86-64 only, detected at run time).
+    Avx2,
+}
+
+impl Isa {
+    /// The fastest available for `n` vertices (gather offsets must fit in i32).
+    pub fn detect(n: usize) -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if n < (1 << 27) && std::arch::is_x86_feature_detected!("avx2") {
+            return Self::Avx2;
+        }
+        let _ = n;
+        Self::Scalar
+    }
+}
+
+// Gathers index anchors as eight floats and positions as three.
+const _: () = assert!(size_of::<VertexAnchor>() == 32 && size_of::<Vec3>() == 12);
+const TARGET: usize = offset_of!(VertexAnchor, target) / 4;
+const NORMAL: usize = offset_of!(VertexAnchor, normal) / 4;
+const K_NORMAL: usize = offset_of!(VertexAnchor, k_normal) / 4;
+const K_TANGENT: usize = offset_of!(VertexAnchor, k_tangent) / 4;
+
+/// Inputs of a force gather, in internal order (all of length `sell.n`).
+pub(crate) struct ForceInputs<'a> {
+    pub sell: &'a Sell,
+    pub x: &'a [Vec3],
+    pub anchors: Option<&'a [VertexAnchor]>,
+    pub external: Option<&'a [Vec3]>,
+    pub pinned: &'a [bool],
+}
+
+/// The vertices of slice `s` (clamped to the last vertex past the end).
+#[inline(always)]
+fn own_lanes<S: Lanes>(l: S, sell: &Sell, s: usize) -> S::I {
+    let last = sell.n - 1;
+    let own: [u32; 8] = std::array::from_fn(|lane| (s * LANES + lane).min(last) as u32);
+    l.load_i(&own)
+}
+
+/// Net force (before pinning) and energy of the vertices of slice `s`.
+///
+/// # Safety
+/// All arrays of `f` have `f.sell.n` entries and every spring index is below it.
+#[inline(always)]
+unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([[f32; 8]; 3], [f64; 8]) {
+    let sell = f.sell;
+    let own = own_lanes(l, sell, s);
+    let own3 = l.times3(own);
+    let xp = f.x.as_ptr().cast::<f32>();
+    // SAFETY (all gathers): indices below n, arrays of n entries (the caller's contract).
+    let (yx, yy, yz) = unsafe {
+        (
+            l.gather(xp, own3),
+            l.gather(xp.add(1), own3),
+            l.gather(xp.add(2), own3),
+        )
+    };
+    let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
+    let zero = l.splat(0.0);
+    let (one, half, tiny) = (l.splat(1.0), l.splat(0.5), l.splat(f32::MIN_POSITIVE));
+    let half64 = l.dsplat(0.5);
+    let (mut fx, mut fy, mut fz) = (zero, zero, zero);
+    let mut energy = l.dsplat(0.0);
+    for e in sell.entries(s).step_by(LANES) {
+        let j = l.load_i(&sell.other[e..e + LANES]);
+        let k = l.load(&sell.k[e..e + LANES]);
+        let rest = l.load(&sell.rest[e..e + LANES]);
+        let j3 = l.times3(j);
+        let (zx, zy, zz) = unsafe {
+            (
+                l.gather(xp, j3),
+                l.gather(xp.add(1), j3),
+                l.gather(xp.add(2), j3),
+            )
+        };
+        let (ex, ey, ez) = (l.sub(zx, yx), l.sub(zy, yy), l.sub(zz, yz));
+        let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
+        let len = l.sqrt(l2);
+        let inv = l.div(one, len);
+        let ok = l.gt(len, tiny);
+        let c = l.mul(l.mul(k, l.sub(len, rest)), inv);
+        fx = l.select(ok, l.add(fx, l.mul(ex, c)), fx);
+        fy = l.select(ok, l.add(fy, l.mul(ey, c)), fy);
+        fz = l.select(ok, l.add(fz, l.mul(ez, c)), fz);
+        // Energy in f64 from exact differences, each spring once (from its lower end): the
+        // stretch `|e| − rest` with one Newton step on the f32 length.
+        let (ex64, ey64, ez64) = (
+            l.dsub(l.widen(zx), yx64),
+            l.dsub(l.widen(zy), yy64),
+            l.dsub(l.widen(zz), yz64),
+        );
+        let l2_64 = l.dadd(
+            l.dadd(l.dmul(ex64, ex64), l.dmul(ey64, ey64)),
+            l.dmul(ez64, ez64),
+        );
+        let len64 = l.widen(len);
+        let linear = l.dsub(len64, l.widen(rest));
+        let newton = l.dmul(l.dsub(l2_64, l.dmul(len64, len64)), l.widen(l.mul(half, inv)));
+        let stretch = l.dselect(ok, l.dadd(linear, newton), linear);
+        let term = l.dmul(l.dmul(l.dmul(half64, l.widen(k)), stretch), stretch);
+        energy = l.dselect(l.gt_i(j, own), l.dadd(energy, term), energy);
+    }
+    if let Some(a) = f.anchors {
+        let ap = a.as_ptr().cast::<f32>();
+        let ia = l.times8(own);
+        let field = |o: usize| unsafe { l.gather(ap.add(o), ia) };
+        let (tx, ty, tz) = (field(TARGET), field(TARGET + 1), field(TARGET + 2));
+        let (nx, ny, nz) = (field(NORMAL), field(NORMAL + 1), field(NORMAL + 2));
+        let (kn, kt) = (field(K_NORMAL), field(K_TANGENT));
+        let (dx, dy, dz) = (l.sub(yx, tx), l.sub(yy, ty), l.sub(yz, tz));
+        let dn = l.add(l.add(l.mul(dx, nx), l.mul(dy, ny)), l.mul(dz, nz));
+        let (tx_, ty_, tz_) = (
+            l.sub(dx, l.mul(nx, dn)),
+            l.sub(dy, l.mul(ny, dn)),
+            l.sub(dz, l.mul(nz, dn)),
+        );
+        let kdn = l.mul(kn, dn);
+        fx = l.add(fx, l.neg(l.add(l.mul(nx, kdn), l.mul(tx_, kt))));
+        fy = l.add(fy, l.neg(l.add(l.mul(ny, kdn), l.mul(ty_, kt))));
+        fz = l.add(fz, l.neg(l.add(l.mul(nz, kdn), l.mul(tz_, kt))));
+        let (dx, dy, dz) = (
+            l.dsub(yx64, l.widen(tx)),
+            l.dsub(yy64, l.widen(ty)),
+            l.dsub(yz64, l.widen(tz)),
+        );
+        let (nx, ny, nz) = (l.widen(nx), l.widen(ny), l.widen(nz));
+        let dn = l.dadd(l.dadd(l.dmul(dx, nx), l.dmul(dy, ny)), l.dmul(dz, nz));
+        let (px, py, pz) = (
+            l.dsub(dx, l.dmul(nx, dn)),
+            l.dsub(dy, l.dmul(ny, dn)),
+            l.dsub(dz, l.dmul(nz, dn)),
+        );
+        let lt = l.dadd(l.dadd(l.dmul(px, px), l.dmul(py, py)), l.dmul(pz, pz));
+        let normal = l.dmul(l.dmul(l.dmul(half64, l.widen(kn)), dn), dn);
+        let tangent = l.dmul(l.dmul(half64, l.widen(kt)), lt);
+        energy = l.dadd(energy, l.dadd(normal, tangent));
+    }
+    if let Some(ext) = f.external {
+        let ep = ext.as_ptr().cast::<f32>();
+        let (gx, gy, gz) = unsafe {
+            (
+                l.gather(ep, own3),
+                l.gather(ep.add(1), own3),
+                l.gather(ep.add(2), own3),
+            )
+        };
+        fx = l.add(fx, gx);
+        fy = l.add(fy, gy);
+        fz = l.add(fz, gz);
+        let work = l.dadd(
+            l.dadd(l.dmul(l.widen(gx), yx64), l.dmul(l.widen(gy), yy64)),
+            l.dmul(l.widen(gz), yz64),
+        );
+        energy = l.dsub(energy, work);
+    }
+    ([l.store(fx), l.store(fy), l.store(fz)], l.dstore(energy))
+}
+
+/// One chunk of the force gather: vertices `first..first + r.len()` (a multiple of [`LANES`]
+/// apart from the last chunk), forces into `r`, partial sums returned.
+#[inline(always)]
+fn force_chunk<S: Lanes>(
+    l: S,
+    f: &ForceInputs<'_>,
+    first: usize,
+    r: &mut [Vec3],
+    w: Option<&[f32]>,
+) -> Sums {
+    let n = f.sell.n;
+    assert!(
+        f.x.len() == n
+            && f.pinned.len() == n
+            && f.anchors.is_none_or(|a| a.len() == n)
+            && f.external.is_none_or(|e| e.len() == n)
+            && w.is_none_or(|w| w.len() == n)
+            && first % LANES == 0
+            && first + r.len() <= n
+    );
+    let mut sums = Sums::default();
+    for (s, out) in (first / LANES..).zip(r.chunks_mut(LANES)) {
+        // SAFETY: lengths asserted above; spring indices are below n by construction.
+        let ([fx, fy, fz], energy) = unsafe { force_slice(l, f, s) };
+        for (lane, slot) in out.iter_mut().enumerate() {
+            let i = s * LANES + lane;
+            let force = if f.pinned[i] {
+                Vec3::ZERO
+            } else {
+                Vec3::new(fx[lane], fy[lane], fz[lane])
+            };
+            sums.energy += energy[lane];
+            let ff = force.dot(force);
+            sums.rr += ff as f64;
+            if let Some(w) = w {
+                sums.rzr += (w[i] * ff) as f64;
+                sums.rz_old += (w[i] * force.dot(*slot)) as f64;
+            }
+            *slot = force;
+        }
+    }
+    sums
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn force_chunk_avx2(
+    f: &ForceInputs<'_>,
+    first: usize,
+    r: &mut [Vec3],
+    w: Option<&[f32]>,
+) -> Sums {
+    force_chunk(avx2::Avx2, f, first, r, w)
+}
+
+impl ForceInputs<'_> {
+    /// Forces of vertices `first..first + r.len()` into `r`, with the chunk's partial sums.
+    pub fn chunk(&self, isa: Isa, first: usize, r: &mut [Vec3], w: Option<&[f32]>) -> Sums {
+        match isa {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Isa::Avx2` is only returned after the CPU check.
+            Isa::Avx2 => unsafe { force_chunk_avx2(self, first, r, w) },
+            _ => force_chunk(Scalar, self, first, r, w),
+        }
+    }
+}
+
+/// Per-vertex `Σ_{j > i} dᵀ H_ij d` over the slices `slices`, in f32 per vertex.
+#[inline(always)]
+fn curvature_chunk<S: Lanes>(
+    l: S,
+    sell: &Sell,
+    x: &[Vec3],
+    d: &[Vec3],
+    anchors: Option<&[VertexAnchor]>,
+    slices: std::ops::Range<usize>,
+) -> f64 {
+    let n = sell.n;
+    assert!(
+        x.len() == n
+            && d.len() == n
+            && anchors.is_none_or(|a| a.len() == n)
+            && slices.end <= sell.slices()
+    );
+    let xp = x.as_ptr().cast::<f32>();
+    let dp = d.as_ptr().cast::<f32>();
+    let zero = l.splat(0.0);
+    let one = l.splat(1.0);
+    let tiny2 = l.splat(f32::MIN_POSITIVE * f32::MIN_POSITIVE);
+    let mut sum = 0.0f64;
+    for s in slices {
+        let own = own_lanes(l, sell, s);
+        let own3 = l.times3(own);
+        // SAFETY (all gathers): indices below n, x and d of n entries (asserted).
+        let g = |p: *const f32, i| unsafe {
+            (l.gather(p, i), l.gather(p.add(1), i), l.gather(p.add(2), i))
+        };
+        let (xx, xy, xz) = g(xp, own3);
+        let (dx, dy, dz) = g(dp, own3);
+        let mut vertex = zero;
+        for e in sell.entries(s).step_by(LANES) {
+            let j = l.load_i(&sell.other[e..e + LANES]);
+            let k = l.load(&sell.k[e..e + LANES]);
+            let rest = l.load(&sell.rest[e..e + LANES]);
+            let j3 = l.times3(j);
+            let (zx, zy, zz) = g(xp, j3);
+            let (vx, vy, vz) = g(dp, j3);
+            let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));
+            let (ux, uy, uz) = (l.sub(vx, dx), l.sub(vy, dy), l.sub(vz, dz));
+            let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
+            let uu = l.add(l.add(l.mul(ux, ux), l.mul(uy, uy)), l.mul(uz, uz));
+            let eu = l.add(l.add(l.mul(ex, ux), l.mul(ey, uy)), l.mul(ez, uz));
+            let inv = l.div(one, l.sqrt(l2));
+            let along = l.mul(eu, inv);
+            let along2 = l.mul(along, along);
+            let transverse = l.max(l.sub(uu, along2), zero);
+            let taut = l.max(l.sub(one, l.mul(rest, inv)), zero);
+            let term = l.mul(k, l.add(along2, l.mul(taut, transverse)));
+            let term = l.select(l.le(l2, tiny2), l.mul(k, uu), term);
+            vertex = l.select(l.gt_i(j, own), l.add(vertex, term), vertex);
+        }
+        let vertex = l.store(vertex);
+        for (lane, v) in vertex.iter().enumerate() {
+            let i = s * LANES + lane;
+            if i >= n {
+                break;
+            }
+            sum += *v as f64;
+            if let Some(a) = anchors {
+                sum += a[i].curvature(d[i]) as f64;
+            }
+        }
+    }
+    sum
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn curvature_chunk_avx2(
+    sell: &Sell,
+    x: &[Vec3],
+    d: &[Vec3],
+    anchors: Option<&[VertexAnchor]>,
+    slices: std::ops::Range<usize>,
+) -> f64 {
+    curvature_chunk(avx2::Avx2, sell, x, d, anchors, slices)
+}
+
+/// `Σ dᵀ H d` contributions of the vertices in `slices` (see [`Frame::curvature`]).
+///
+/// [`Frame::curvature`]: super::kernels::Frame::curvature
+pub(crate) fn curvature(
+    isa: Isa,
+    sell: &Sell,
+    x: &[Vec3],
+    d: &[Vec3],
+    anchors: Option<&[VertexAnchor]>,
+    slices: std::ops::Range<usize>,
+) -> f64 {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Isa::Avx2` is only returned after the CPU check.
+        Isa::Avx2 => unsafe { curvature_chunk_avx2(sell, x, d, anchors, slices) },
+        _ => curvature_chunk(Scalar, sell, x, d, anchors, slices),
+    }
+}
