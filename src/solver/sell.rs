@@ -3,8 +3,11 @@
 //! Each slice of [`LANES`] consecutive (internal) vertices is padded to the largest degree among
 //! them and stored slot-major: entry `slot * LANES + lane` of the slice is the `slot`-th spring
 //! of vertex `8 * slice + lane`. One SIMD load then reads one spring of eight vertices, so the
-//! kernels never shuffle lanes. Padding entries point at the vertex itself with zero stiffness
-//! and rest length (a real spring never joins a vertex to itself), and contribute nothing.
+//! kernels never shuffle lanes. Each vertex's springs are right-aligned in its lane (padding
+//! first), so the springs to higher-numbered vertices, which carry the energy and the
+//! curvature, sit in the last slots of every slice: the kernels visit only those slots for them.
+//! Padding entries point at the vertex itself with zero stiffness and rest length (a real spring
+//! never joins a vertex to itself), and contribute nothing.
 
 use super::Spring;
 
@@ -18,6 +21,8 @@ pub(crate) struct Sell {
     pub n: usize,
     /// Start of each slice's entries (`slices + 1` values, multiples of [`LANES`]).
     pub start: Vec<u32>,
+    /// Per slice, the first entry from which some lane has a spring to a higher vertex.
+    pub upper: Vec<u32>,
     /// The vertex at the other end (the vertex itself for padding).
     pub other: Vec<u32>,
     /// Stiffness, N/m (0 for padding).
@@ -45,23 +50,34 @@ impl Sell {
         let mut other = vec![0u32; total];
         let mut k = vec![0.0f32; total];
         let mut rest = vec![0.0f32; total];
+        let mut upper = Vec::with_capacity(slices);
         for s in 0..slices {
             let (begin, end) = (start[s] as usize, start[s + 1] as usize);
+            let width = (end - begin) / LANES;
+            let mut first_upper = width;
             for lane in 0..LANES {
                 let i = (s * LANES + lane).min(n - 1);
                 let own = &springs[offsets[i] as usize..offsets[i + 1] as usize];
                 let own = if s * LANES + lane < n { own } else { &[] };
+                let pad = width - own.len();
+                // CSR springs are sorted by their other end: the upper ones are a suffix.
+                let lower = own.partition_point(|sp| (sp.other as usize) < i);
+                if lower < own.len() {
+                    first_upper = first_upper.min(pad + lower);
+                }
                 for (slot, e) in (begin + lane..end).step_by(LANES).enumerate() {
-                    match own.get(slot) {
+                    match slot.checked_sub(pad).map(|o| own[o]) {
                         Some(sp) => (other[e], k[e], rest[e]) = (sp.other, sp.k, sp.rest),
                         None => other[e] = i as u32,
                     }
                 }
             }
+            upper.push((begin + first_upper * LANES) as u32);
         }
         Self {
             n,
             start,
+            upper,
             other,
             k,
             rest,
@@ -72,6 +88,12 @@ impl Sell {
     #[inline(always)]
     pub fn entries(&self, s: usize) -> std::ops::Range<usize> {
         self.start[s] as usize..self.start[s + 1] as usize
+    }
+
+    /// The entries of slice `s` from which some lane has a spring to a higher vertex.
+    #[inline(always)]
+    pub fn upper_entries(&self, s: usize) -> std::ops::Range<usize> {
+        self.upper[s] as usize..self.start[s + 1] as usize
     }
 
     /// Number of slices.
@@ -107,7 +129,7 @@ impl Sell {
 
     /// Bytes held.
     pub fn bytes(&self) -> usize {
-        self.start.len() * 4 + self.other.len() * 12
+        (self.start.len() + self.upper.len()) * 4 + self.other.len() * 12
     }
 }
 
@@ -141,5 +163,14 @@ mod tests {
         let total: f32 = springs.iter().map(|s| s.k).sum();
         assert_eq!(sell.k.iter().sum::<f32>(), total);
         assert_eq!(sell.other.len(), 32 + 32);
+        // Every spring to a higher vertex lies in its slice's upper entries.
+        for s in 0..sell.slices() {
+            for e in sell.entries(s) {
+                let i = (s * LANES + (e - sell.start[s] as usize) % LANES).min(10);
+                if sell.other[e] as usize > i {
+                    assert!(sell.upper_entries(s).contains(&e), "entry {e}");
+                }
+            }
+        }
     }
 }

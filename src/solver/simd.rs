@@ -37,6 +37,17 @@ pub(crate) trait Lanes: Copy {
     /// # Safety
     /// Every `base + idx[l]` must be in bounds of one allocation.
     unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F;
+    /// Eight consecutive `Vec3` at `p` (24 floats) as their x, y and z lanes.
+    ///
+    /// # Safety
+    /// 24 floats from `p` must be readable.
+    unsafe fn load3(self, p: *const f32) -> [Self::F; 3];
+    /// Eight consecutive rows of eight floats at `p`, transposed: lane `l` of entry `c` is
+    /// `p[8 l + c]`.
+    ///
+    /// # Safety
+    /// 64 floats from `p` must be readable.
+    unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8];
     /// `3 i` per lane.
     fn times3(self, i: Self::I) -> Self::I;
     /// `8 i` per lane.
@@ -90,6 +101,16 @@ impl Lanes for Scalar {
     unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
         // SAFETY: the caller guarantees every index is in bounds.
         std::array::from_fn(|l| unsafe { *base.add(idx[l] as usize) })
+    }
+    #[inline(always)]
+    unsafe fn load3(self, p: *const f32) -> [Self::F; 3] {
+        // SAFETY: the caller guarantees 24 readable floats.
+        std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(3 * l + c) }))
+    }
+    #[inline(always)]
+    unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
+        // SAFETY: the caller guarantees 64 readable floats.
+        std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(8 * l + c) }))
     }
     #[inline(always)]
     fn times3(self, i: Self::I) -> Self::I {
@@ -211,6 +232,60 @@ mod avx2 {
         unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
             // SAFETY: the caller guarantees every index is in bounds.
             unsafe { _mm256_i32gather_ps::<4>(base, idx) }
+        }
+        #[inline(always)]
+        unsafe fn load3(self, p: *const f32) -> [Self::F; 3] {
+            // SAFETY: the caller guarantees 24 readable floats. Float 3m + c is component c of
+            // vertex m; two blends gather each component's eight values into one register (out
+            // of order), one permutation puts them in vertex order.
+            unsafe {
+                let (a, b, c) = (
+                    _mm256_loadu_ps(p),
+                    _mm256_loadu_ps(p.add(8)),
+                    _mm256_loadu_ps(p.add(16)),
+                );
+                let x = _mm256_blend_ps::<0b0010_0100>(_mm256_blend_ps::<0b1001_0010>(a, b), c);
+                let y = _mm256_blend_ps::<0b0100_1001>(_mm256_blend_ps::<0b0010_0100>(a, b), c);
+                let z = _mm256_blend_ps::<0b1001_0010>(_mm256_blend_ps::<0b0100_1001>(a, b), c);
+                [
+                    _mm256_permutevar8x32_ps(x, _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5)),
+                    _mm256_permutevar8x32_ps(y, _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6)),
+                    _mm256_permutevar8x32_ps(z, _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7)),
+                ]
+            }
+        }
+        #[inline(always)]
+        unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
+            // SAFETY: the caller guarantees 64 readable floats. The usual 8x8 transpose.
+            unsafe {
+                let r: [__m256; 8] = std::array::from_fn(|l| _mm256_loadu_ps(p.add(8 * l)));
+                let t0 = _mm256_unpacklo_ps(r[0], r[1]);
+                let t1 = _mm256_unpackhi_ps(r[0], r[1]);
+                let t2 = _mm256_unpacklo_ps(r[2], r[3]);
+                let t3 = _mm256_unpackhi_ps(r[2], r[3]);
+                let t4 = _mm256_unpacklo_ps(r[4], r[5]);
+                let t5 = _mm256_unpackhi_ps(r[4], r[5]);
+                let t6 = _mm256_unpacklo_ps(r[6], r[7]);
+                let t7 = _mm256_unpackhi_ps(r[6], r[7]);
+                let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
+                let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
+                let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
+                let u3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
+                let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
+                let u5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
+                let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
+                let u7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
+                [
+                    _mm256_permute2f128_ps::<0x20>(u0, u4),
+                    _mm256_permute2f128_ps::<0x20>(u1, u5),
+                    _mm256_permute2f128_ps::<0x20>(u2, u6),
+                    _mm256_permute2f128_ps::<0x20>(u3, u7),
+                    _mm256_permute2f128_ps::<0x31>(u0, u4),
+                    _mm256_permute2f128_ps::<0x31>(u1, u5),
+                    _mm256_permute2f128_ps::<0x31>(u2, u6),
+                    _mm256_permute2f128_ps::<0x31>(u3, u7),
+                ]
+            }
         }
         #[inline(always)]
         fn times3(self, i: Self::I) -> Self::I {
@@ -365,6 +440,33 @@ fn own_lanes<S: Lanes>(l: S, sell: &Sell, s: usize) -> S::I {
     l.load_i(&own)
 }
 
+/// `(p[i], p[i + 1], p[i + 2])` per lane.
+///
+/// # Safety
+/// Every `p + i + 2` in bounds.
+#[inline(always)]
+unsafe fn gather3<S: Lanes>(l: S, p: *const f32, i: S::I) -> [S::F; 3] {
+    // SAFETY: the caller's contract.
+    unsafe { [l.gather(p, i), l.gather(p.add(1), i), l.gather(p.add(2), i)] }
+}
+
+/// Components of `v[i]` for the vertices `i` of slice `s` (`own`: their clamped indices).
+///
+/// # Safety
+/// `v` has `sell.n` entries.
+#[inline(always)]
+unsafe fn own_vec3<S: Lanes>(l: S, sell: &Sell, s: usize, own: S::I, v: &[Vec3]) -> [S::F; 3] {
+    let p = v.as_ptr().cast::<f32>();
+    // SAFETY: a full slice reads v[8s..8s + 8]; otherwise indices are clamped below n.
+    unsafe {
+        if (s + 1) * LANES <= sell.n {
+            l.load3(p.add(3 * LANES * s))
+        } else {
+            gather3(l, p, l.times3(own))
+        }
+    }
+}
+
 /// Net force (before pinning) and energy of the vertices of slice `s`.
 ///
 /// # Safety
@@ -376,31 +478,22 @@ unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([[f32; 
     let own3 = l.times3(own);
     let xp = f.x.as_ptr().cast::<f32>();
     // SAFETY (all gathers): indices below n, arrays of n entries (the caller's contract).
-    let (yx, yy, yz) = unsafe {
-        (
-            l.gather(xp, own3),
-            l.gather(xp.add(1), own3),
-            l.gather(xp.add(2), own3),
-        )
-    };
+    let [yx, yy, yz] = unsafe { own_vec3(l, sell, s, own, f.x) };
     let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
     let zero = l.splat(0.0);
     let (one, half, tiny) = (l.splat(1.0), l.splat(0.5), l.splat(f32::MIN_POSITIVE));
     let half64 = l.dsplat(0.5);
     let (mut fx, mut fy, mut fz) = (zero, zero, zero);
     let mut energy = l.dsplat(0.0);
+    // One spring of every lane per step: force always, energy from the upper entries on
+    // (springs to higher vertices only).
+    let upper = sell.upper[s] as usize;
     for e in sell.entries(s).step_by(LANES) {
         let j = l.load_i(&sell.other[e..e + LANES]);
         let k = l.load(&sell.k[e..e + LANES]);
         let rest = l.load(&sell.rest[e..e + LANES]);
         let j3 = l.times3(j);
-        let (zx, zy, zz) = unsafe {
-            (
-                l.gather(xp, j3),
-                l.gather(xp.add(1), j3),
-                l.gather(xp.add(2), j3),
-            )
-        };
+        let [zx, zy, zz] = unsafe { gather3(l, xp, j3) };
         let (ex, ey, ez) = (l.sub(zx, yx), l.sub(zy, yy), l.sub(zz, yz));
         let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
         let len = l.sqrt(l2);
@@ -410,6 +503,9 @@ unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([[f32; 
         fx = l.select(ok, l.add(fx, l.mul(ex, c)), fx);
         fy = l.select(ok, l.add(fy, l.mul(ey, c)), fy);
         fz = l.select(ok, l.add(fz, l.mul(ez, c)), fz);
+        if e < upper {
+            continue;
+        }
         // Energy in f64 from exact differences, each spring once (from its lower end): the
         // stretch `|e| − rest` with one Newton step on the f32 length.
         let (ex64, ey64, ez64) = (
@@ -430,11 +526,21 @@ unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([[f32; 
     }
     if let Some(a) = f.anchors {
         let ap = a.as_ptr().cast::<f32>();
-        let ia = l.times8(own);
-        let field = |o: usize| unsafe { l.gather(ap.add(o), ia) };
-        let (tx, ty, tz) = (field(TARGET), field(TARGET + 1), field(TARGET + 2));
-        let (nx, ny, nz) = (field(NORMAL), field(NORMAL + 1), field(NORMAL + 2));
-        let (kn, kt) = (field(K_NORMAL), field(K_TANGENT));
+        let rows = if (s + 1) * LANES <= sell.n {
+            // SAFETY: a full slice reads anchors 8s..8s + 8.
+            unsafe { l.load8x8(ap.add(8 * LANES * s)) }
+        } else {
+            let ia = l.times8(own);
+            let mut rows = [zero; 8];
+            for (o, row) in rows.iter_mut().enumerate() {
+                // SAFETY: anchors of n entries, indices below n.
+                *row = unsafe { l.gather(ap.add(o), ia) };
+            }
+            rows
+        };
+        let (tx, ty, tz) = (rows[TARGET], rows[TARGET + 1], rows[TARGET + 2]);
+        let (nx, ny, nz) = (rows[NORMAL], rows[NORMAL + 1], rows[NORMAL + 2]);
+        let (kn, kt) = (rows[K_NORMAL], rows[K_TANGENT]);
         let (dx, dy, dz) = (l.sub(yx, tx), l.sub(yy, ty), l.sub(yz, tz));
         let dn = l.add(l.add(l.mul(dx, nx), l.mul(dy, ny)), l.mul(dz, nz));
         let (tx_, ty_, tz_) = (
@@ -465,13 +571,7 @@ unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([[f32; 
     }
     if let Some(ext) = f.external {
         let ep = ext.as_ptr().cast::<f32>();
-        let (gx, gy, gz) = unsafe {
-            (
-                l.gather(ep, own3),
-                l.gather(ep.add(1), own3),
-                l.gather(ep.add(2), own3),
-            )
-        };
+        let [gx, gy, gz] = unsafe { gather3(l, ep, own3) };
         fx = l.add(fx, gx);
         fy = l.add(fy, gy);
         fz = l.add(fz, gz);
@@ -576,21 +676,17 @@ fn curvature_chunk<S: Lanes>(
     let mut sum = 0.0f64;
     for s in slices {
         let own = own_lanes(l, sell, s);
-        let own3 = l.times3(own);
         // SAFETY (all gathers): indices below n, x and d of n entries (asserted).
-        let g = |p: *const f32, i| unsafe {
-            (l.gather(p, i), l.gather(p.add(1), i), l.gather(p.add(2), i))
-        };
-        let (xx, xy, xz) = g(xp, own3);
-        let (dx, dy, dz) = g(dp, own3);
+        let [xx, xy, xz] = unsafe { own_vec3(l, sell, s, own, x) };
+        let [dx, dy, dz] = unsafe { own_vec3(l, sell, s, own, d) };
         let mut vertex = zero;
-        for e in sell.entries(s).step_by(LANES) {
+        for e in sell.upper_entries(s).step_by(LANES) {
             let j = l.load_i(&sell.other[e..e + LANES]);
             let k = l.load(&sell.k[e..e + LANES]);
             let rest = l.load(&sell.rest[e..e + LANES]);
             let j3 = l.times3(j);
-            let (zx, zy, zz) = g(xp, j3);
-            let (vx, vy, vz) = g(dp, j3);
+            let [zx, zy, zz] = unsafe { gather3(l, xp, j3) };
+            let [vx, vy, vz] = unsafe { gather3(l, dp, j3) };
             let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));
             let (ux, uy, uz) = (l.sub(vx, dx), l.sub(vy, dy), l.sub(vz, dz));
             let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
