@@ -143,6 +143,7 @@ mod tests {
         let mut offsets = vec![0u32];
         let mut springs = Vec::new();
         for i in 0..11u32 {
+            let first = springs.len();
             for d in 0..i % 5 {
                 springs.push(Spring {
                     other: (i + d + 1) % 11,
@@ -150,6 +151,8 @@ mod tests {
                     rest: d as f32,
                 });
             }
+            // As in the solver: each vertex's springs sorted by their other end.
+            springs[first..].sort_by_key(|s| s.other);
             offsets.push(springs.len() as u32);
         }
         let sell = Sell::from_csr(&offsets, &springs);
