@@ -54,6 +54,15 @@ pub(crate) trait Lanes: Copy {
     /// # Safety
     /// `p` points to `3 n` readable floats and every `idx[l] < n` (eight of them).
     unsafe fn vec3s(self, p: *const f32, n: usize, idx: &[u32], j: Self::I) -> [Self::F; 3];
+    /// Writes eight `Vec3` (24 floats) at `p` from their x, y and z lanes.
+    ///
+    /// # Safety
+    /// 24 floats from `p` must be writable.
+    unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]);
+    /// Lanes whose flag is set.
+    fn flags(self, p: &[bool]) -> Self::M;
+    /// Eight f64 from an array.
+    fn dfrom(self, a: [f64; 8]) -> Self::D;
     /// `3 i` per lane.
     fn times3(self, i: Self::I) -> Self::I;
     /// `8 i` per lane.
@@ -122,6 +131,23 @@ impl Lanes for Scalar {
     unsafe fn vec3s(self, p: *const f32, _n: usize, idx: &[u32], _j: Self::I) -> [Self::F; 3] {
         // SAFETY: the caller guarantees the indices are in bounds.
         std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(3 * idx[l] as usize + c) }))
+    }
+    #[inline(always)]
+    unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
+        for l in 0..8 {
+            for (c, v) in v.iter().enumerate() {
+                // SAFETY: the caller guarantees 24 writable floats.
+                unsafe { *p.add(3 * l + c) = v[l] };
+            }
+        }
+    }
+    #[inline(always)]
+    fn flags(self, p: &[bool]) -> Self::M {
+        std::array::from_fn(|l| p[l])
+    }
+    #[inline(always)]
+    fn dfrom(self, a: [f64; 8]) -> Self::D {
+        a
     }
     #[inline(always)]
     fn times3(self, i: Self::I) -> Self::I {
@@ -331,6 +357,34 @@ mod avx2 {
             }
         }
         #[inline(always)]
+        unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
+            // SAFETY: the caller guarantees 24 writable floats. The inverse of `load3`: put each
+            // component's values where the three output registers want them, then blend.
+            unsafe {
+                let x = _mm256_permutevar8x32_ps(v[0], _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5));
+                let y = _mm256_permutevar8x32_ps(v[1], _mm256_setr_epi32(5, 0, 3, 6, 1, 4, 7, 2));
+                let z = _mm256_permutevar8x32_ps(v[2], _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7));
+                let a = _mm256_blend_ps::<0b0010_0100>(_mm256_blend_ps::<0b1001_0010>(x, y), z);
+                let b = _mm256_blend_ps::<0b0010_0100>(_mm256_blend_ps::<0b1001_0010>(z, x), y);
+                let c = _mm256_blend_ps::<0b1001_0010>(_mm256_blend_ps::<0b0010_0100>(y, x), z);
+                _mm256_storeu_ps(p, a);
+                _mm256_storeu_ps(p.add(8), b);
+                _mm256_storeu_ps(p.add(16), c);
+            }
+        }
+        #[inline(always)]
+        fn flags(self, p: &[bool]) -> Self::M {
+            let bytes: [u8; 8] = std::array::from_fn(|l| p[l] as u8);
+            unsafe {
+                let wide = _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(i64::from_le_bytes(bytes)));
+                _mm256_castsi256_ps(_mm256_cmpgt_epi32(wide, _mm256_setzero_si256()))
+            }
+        }
+        #[inline(always)]
+        fn dfrom(self, a: [f64; 8]) -> Self::D {
+            unsafe { (_mm256_loadu_pd(a.as_ptr()), _mm256_loadu_pd(a.as_ptr().add(4))) }
+        }
+        #[inline(always)]
         fn times3(self, i: Self::I) -> Self::I {
             unsafe { _mm256_add_epi32(i, _mm256_add_epi32(i, i)) }
         }
@@ -515,7 +569,7 @@ unsafe fn own_vec3<S: Lanes>(l: S, sell: &Sell, s: usize, own: S::I, v: &[Vec3])
 /// # Safety
 /// All arrays of `f` have `f.sell.n` entries and every spring index is below it.
 #[inline(always)]
-unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([[f32; 8]; 3], [f64; 8]) {
+unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([S::F; 3], S::D) {
     let sell = f.sell;
     let own = own_lanes(l, sell, s);
     let own3 = l.times3(own);
@@ -625,7 +679,7 @@ unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([[f32; 
         );
         energy = l.dsub(energy, work);
     }
-    ([l.store(fx), l.store(fy), l.store(fz)], l.dstore(energy))
+    ([fx, fy, fz], energy)
 }
 
 /// One chunk of the force gather: vertices `first..first + r.len()` (a multiple of [`LANES`]
@@ -648,28 +702,70 @@ fn force_chunk<S: Lanes>(
             && first % LANES == 0
             && first + r.len() <= n
     );
-    let mut sums = Sums::default();
+    // Per-lane sums (lane = vertex mod 8), added across lanes in order at the end.
+    let zero = l.splat(0.0);
+    let (mut energy_acc, mut rr, mut rzr, mut rz_old) =
+        (l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0));
     for (s, out) in (first / LANES..).zip(r.chunks_mut(LANES)) {
         // SAFETY: lengths asserted above; spring indices are below n by construction.
         let ([fx, fy, fz], energy) = unsafe { force_slice(l, f, s) };
+        let base = s * LANES;
+        if out.len() == LANES {
+            let pinned = l.flags(&f.pinned[base..base + LANES]);
+            let (fx, fy, fz) = (
+                l.select(pinned, zero, fx),
+                l.select(pinned, zero, fy),
+                l.select(pinned, zero, fz),
+            );
+            energy_acc = l.dadd(energy_acc, energy);
+            let ff = l.add(l.add(l.mul(fx, fx), l.mul(fy, fy)), l.mul(fz, fz));
+            rr = l.dadd(rr, l.widen(ff));
+            let p = out.as_mut_ptr().cast::<f32>();
+            if let Some(w) = w {
+                let w = l.load(&w[base..base + LANES]);
+                // SAFETY: `out` holds eight vectors.
+                let [ox, oy, oz] = unsafe { l.load3(p) };
+                let fo = l.add(l.add(l.mul(fx, ox), l.mul(fy, oy)), l.mul(fz, oz));
+                rzr = l.dadd(rzr, l.widen(l.mul(w, ff)));
+                rz_old = l.dadd(rz_old, l.widen(l.mul(w, fo)));
+            }
+            // SAFETY: `out` holds eight vectors.
+            unsafe { l.store3(p, [fx, fy, fz]) };
+            continue;
+        }
+        // The last, partial slice: the same per-lane values, lane by lane.
+        let ([fx, fy, fz], energy) = ([l.store(fx), l.store(fy), l.store(fz)], l.dstore(energy));
+        let (mut e8, mut rr8, mut rzr8, mut rzo8) = ([0.0f64; 8], [0.0f64; 8], [0.0; 8], [0.0; 8]);
         for (lane, slot) in out.iter_mut().enumerate() {
-            let i = s * LANES + lane;
+            let i = base + lane;
             let force = if f.pinned[i] {
                 Vec3::ZERO
             } else {
                 Vec3::new(fx[lane], fy[lane], fz[lane])
             };
-            sums.energy += energy[lane];
+            e8[lane] = energy[lane];
             let ff = force.dot(force);
-            sums.rr += ff as f64;
+            rr8[lane] = ff as f64;
             if let Some(w) = w {
-                sums.rzr += (w[i] * ff) as f64;
-                sums.rz_old += (w[i] * force.dot(*slot)) as f64;
+                rzr8[lane] = (w[i] * ff) as f64;
+                rzo8[lane] = (w[i] * force.dot(*slot)) as f64;
             }
             *slot = force;
         }
+        energy_acc = l.dadd(energy_acc, l.dfrom(e8));
+        rr = l.dadd(rr, l.dfrom(rr8));
+        if w.is_some() {
+            rzr = l.dadd(rzr, l.dfrom(rzr8));
+            rz_old = l.dadd(rz_old, l.dfrom(rzo8));
+        }
     }
-    sums
+    let sum = |d: S::D| l.dstore(d).iter().fold(0.0f64, |a, b| a + b);
+    Sums {
+        energy: sum(energy_acc),
+        rr: sum(rr),
+        rzr: sum(rzr),
+        rz_old: sum(rz_old),
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -717,7 +813,8 @@ fn curvature_chunk<S: Lanes>(
     let zero = l.splat(0.0);
     let one = l.splat(1.0);
     let tiny2 = l.splat(f32::MIN_POSITIVE * f32::MIN_POSITIVE);
-    let mut sum = 0.0f64;
+    // Per-lane sums (lane = vertex mod 8), added across lanes in order at the end.
+    let mut acc = l.dsplat(0.0);
     for s in slices {
         let own = own_lanes(l, sell, s);
         // SAFETY (all gathers): indices below n, x and d of n entries (asserted).
@@ -746,19 +843,37 @@ fn curvature_chunk<S: Lanes>(
             let term = l.select(l.le(l2, tiny2), l.mul(k, uu), term);
             vertex = l.select(l.gt_i(j, own), l.add(vertex, term), vertex);
         }
-        let vertex = l.store(vertex);
-        for (lane, v) in vertex.iter().enumerate() {
-            let i = s * LANES + lane;
-            if i >= n {
-                break;
-            }
-            sum += *v as f64;
-            if let Some(a) = anchors {
-                sum += a[i].curvature(d[i]) as f64;
-            }
+        let valid = (s + 1) * LANES <= n;
+        if valid {
+            acc = l.dadd(acc, l.widen(vertex));
+        } else {
+            let v = l.store(vertex);
+            acc = l.dadd(acc, l.dfrom(std::array::from_fn(|lane| {
+                if s * LANES + lane < n { v[lane] as f64 } else { 0.0 }
+            })));
+        }
+        if let Some(a) = anchors {
+            let term = if valid {
+                let ap = a.as_ptr().cast::<f32>();
+                // SAFETY: a full slice reads anchors 8s..8s + 8.
+                let rows = unsafe { l.load8x8(ap.add(8 * LANES * s)) };
+                let (nx, ny, nz) = (rows[NORMAL], rows[NORMAL + 1], rows[NORMAL + 2]);
+                let (kn, kt) = (rows[K_NORMAL], rows[K_TANGENT]);
+                let un = l.add(l.add(l.mul(dx, nx), l.mul(dy, ny)), l.mul(dz, nz));
+                let uu = l.add(l.add(l.mul(dx, dx), l.mul(dy, dy)), l.mul(dz, dz));
+                let un2 = l.mul(un, un);
+                let t = l.add(l.mul(l.mul(kn, un), un), l.mul(kt, l.max(l.sub(uu, un2), zero)));
+                l.widen(t)
+            } else {
+                l.dfrom(std::array::from_fn(|lane| {
+                    let i = s * LANES + lane;
+                    if i < n { a[i].curvature(d[i]) as f64 } else { 0.0 }
+                }))
+            };
+            acc = l.dadd(acc, term);
         }
     }
-    sum
+    l.dstore(acc).iter().fold(0.0f64, |a, b| a + b)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -865,7 +980,8 @@ mod tests {
         ext: &[Vec3],
         pinned: &[bool],
     ) -> (Vec<Vec3>, f64) {
-        let mut total = 0.0f64;
+        // Energy summed per lane (vertex mod 8), then across lanes in order.
+        let mut lanes = [0.0f64; 8];
         let forces = (0..sell.n)
             .map(|i| {
                 let yi = x[i];
@@ -895,11 +1011,11 @@ mod tests {
                 energy += ea;
                 force += ext[i];
                 energy -= ext[i].as_dvec3().dot(yi.as_dvec3());
-                total += energy;
+                lanes[i % 8] += energy;
                 if pinned[i] { Vec3::ZERO } else { force }
             })
             .collect();
-        (forces, total)
+        (forces, lanes.iter().fold(0.0, |a, b| a + b))
     }
 
     fn isas() -> Vec<Isa> {
@@ -949,7 +1065,7 @@ mod tests {
         let d: Vec<Vec3> = (0..sell.n)
             .map(|i| Vec3::new((i as f32 * 0.7).sin(), (i as f32 * 0.3).cos(), 0.2) * 1e-3)
             .collect();
-        let mut want = 0.0f64;
+        let mut lanes = [0.0f64; 8];
         for i in 0..sell.n {
             let mut vertex = 0.0f32;
             for s in sell.springs_of(i).filter(|s| s.other as usize > i) {
@@ -965,9 +1081,10 @@ mod tests {
                 let transverse = (u.length_squared() - along * along).max(0.0);
                 vertex += s.k * (along * along + (1.0 - s.rest * inv_len).max(0.0) * transverse);
             }
-            want += vertex as f64;
-            want += ai[i].curvature(d[i]) as f64;
+            lanes[i % 8] += vertex as f64;
+            lanes[i % 8] += ai[i].curvature(d[i]) as f64;
         }
+        let want = lanes.iter().fold(0.0f64, |a, b| a + b);
         for isa in isas() {
             let got = curvature(isa, sell, &xi, &d, Some(&ai), 0..sell.slices());
             assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
