@@ -150,4 +150,3 @@ pub(crate) fn dot(a: &[Vec3], b: &[Vec3]) -> f64 {
         .collect();
     partial.iter().sum()
 }
-

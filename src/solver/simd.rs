@@ -382,7 +382,12 @@ mod avx2 {
         }
         #[inline(always)]
         fn dfrom(self, a: [f64; 8]) -> Self::D {
-            unsafe { (_mm256_loadu_pd(a.as_ptr()), _mm256_loadu_pd(a.as_ptr().add(4))) }
+            unsafe {
+                (
+                    _mm256_loadu_pd(a.as_ptr()),
+                    _mm256_loadu_pd(a.as_ptr().add(4)),
+                )
+            }
         }
         #[inline(always)]
         fn times3(self, i: Self::I) -> Self::I {
@@ -476,7 +481,10 @@ mod avx2 {
                 let lo = _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_castsi256_si128(m)));
                 let hi =
                     _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_extracti128_si256::<1>(m)));
-                (_mm256_blendv_pd(b.0, a.0, lo), _mm256_blendv_pd(b.1, a.1, hi))
+                (
+                    _mm256_blendv_pd(b.0, a.0, lo),
+                    _mm256_blendv_pd(b.1, a.1, hi),
+                )
             }
         }
         #[inline(always)]
@@ -617,7 +625,10 @@ unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([S::F; 
         );
         let len64 = l.widen(len);
         let linear = l.dsub(len64, l.widen(rest));
-        let newton = l.dmul(l.dsub(l2_64, l.dmul(len64, len64)), l.widen(l.mul(half, inv)));
+        let newton = l.dmul(
+            l.dsub(l2_64, l.dmul(len64, len64)),
+            l.widen(l.mul(half, inv)),
+        );
         let stretch = l.dselect(ok, l.dadd(linear, newton), linear);
         let term = l.dmul(l.dmul(l.dmul(half64, l.widen(k)), stretch), stretch);
         energy = l.dselect(l.gt_i(j, own), l.dadd(energy, term), energy);
@@ -699,7 +710,7 @@ fn force_chunk<S: Lanes>(
             && f.anchors.is_none_or(|a| a.len() == n)
             && f.external.is_none_or(|e| e.len() == n)
             && w.is_none_or(|w| w.len() == n)
-            && first % LANES == 0
+            && first.is_multiple_of(LANES)
             && first + r.len() <= n
     );
     // Per-lane sums (lane = vertex mod 8), added across lanes in order at the end.
@@ -770,12 +781,7 @@ fn force_chunk<S: Lanes>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn force_chunk_avx2(
-    f: &ForceInputs<'_>,
-    first: usize,
-    r: &mut [Vec3],
-    w: Option<&[f32]>,
-) -> Sums {
+fn force_chunk_avx2(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3], w: Option<&[f32]>) -> Sums {
     force_chunk(avx2::Avx2, f, first, r, w)
 }
 
@@ -848,9 +854,16 @@ fn curvature_chunk<S: Lanes>(
             acc = l.dadd(acc, l.widen(vertex));
         } else {
             let v = l.store(vertex);
-            acc = l.dadd(acc, l.dfrom(std::array::from_fn(|lane| {
-                if s * LANES + lane < n { v[lane] as f64 } else { 0.0 }
-            })));
+            acc = l.dadd(
+                acc,
+                l.dfrom(std::array::from_fn(|lane| {
+                    if s * LANES + lane < n {
+                        v[lane] as f64
+                    } else {
+                        0.0
+                    }
+                })),
+            );
         }
         if let Some(a) = anchors {
             let term = if valid {
@@ -862,12 +875,19 @@ fn curvature_chunk<S: Lanes>(
                 let un = l.add(l.add(l.mul(dx, nx), l.mul(dy, ny)), l.mul(dz, nz));
                 let uu = l.add(l.add(l.mul(dx, dx), l.mul(dy, dy)), l.mul(dz, dz));
                 let un2 = l.mul(un, un);
-                let t = l.add(l.mul(l.mul(kn, un), un), l.mul(kt, l.max(l.sub(uu, un2), zero)));
+                let t = l.add(
+                    l.mul(l.mul(kn, un), un),
+                    l.mul(kt, l.max(l.sub(uu, un2), zero)),
+                );
                 l.widen(t)
             } else {
                 l.dfrom(std::array::from_fn(|lane| {
                     let i = s * LANES + lane;
-                    if i < n { a[i].curvature(d[i]) as f64 } else { 0.0 }
+                    if i < n {
+                        a[i].curvature(d[i]) as f64
+                    } else {
+                        0.0
+                    }
                 }))
             };
             acc = l.dadd(acc, term);
@@ -914,7 +934,13 @@ mod tests {
 
     /// A shuffled, irregular spring net (a 23 x 19 grid with diagonals and some long springs,
     /// listed in a scrambled vertex order), anchors, external forces and a few pins.
-    fn net() -> (SpringSystem, Vec<Vec3>, Vec<VertexAnchor>, Vec<Vec3>, Vec<bool>) {
+    fn net() -> (
+        SpringSystem,
+        Vec<Vec3>,
+        Vec<VertexAnchor>,
+        Vec<Vec3>,
+        Vec<bool>,
+    ) {
         let (w, h) = (23u32, 19u32);
         let n = (w * h) as usize;
         let scramble = |v: u32| (v * 211) % (w * h);
@@ -967,7 +993,9 @@ mod tests {
                 k_tangent: 2.0,
             })
             .collect();
-        let ext = (0..n).map(|i| Vec3::new(0.0, 0.0, -0.01 * (i % 5) as f32)).collect();
+        let ext = (0..n)
+            .map(|i| Vec3::new(0.0, 0.0, -0.01 * (i % 5) as f32))
+            .collect();
         let pinned = (0..n).map(|i| i % 31 == 4).collect();
         (system, x, anchors, ext, pinned)
     }
