@@ -18,6 +18,12 @@ fn main() {
     let frames = args.next().flatten().unwrap_or(1);
     let work = TubeWorkload::new("probe", vertices);
     let mut x = work.mesh.positions().to_vec();
+    println!(
+        "{} vertices, {} springs, {:.1} B of springs per vertex",
+        x.len(),
+        work.system.edge_count(),
+        work.system.bytes_per_vertex()
+    );
     for frame in 0..frames {
         let first: usize = std::env::var("PROBE_FRAME0")
             .ok()

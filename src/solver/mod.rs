@@ -217,7 +217,8 @@ pub enum SolverError {
     },
 }
 
-/// A spring mesh ready to relax: CSR springs in a locality-friendly internal vertex order.
+/// A spring mesh ready to relax: springs in slices of eight vertices (for the SIMD kernels), in a
+/// locality-friendly internal vertex order.
 ///
 /// Vertices are renumbered along a Morton curve of their rest positions when the system is
 /// built (a shuffled input runs as fast as a well-ordered one); every public method takes and

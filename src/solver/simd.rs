@@ -87,7 +87,6 @@ pub(crate) trait Lanes: Copy {
     fn dadd(self, a: Self::D, b: Self::D) -> Self::D;
     fn dsub(self, a: Self::D, b: Self::D) -> Self::D;
     fn dmul(self, a: Self::D, b: Self::D) -> Self::D;
-    fn dselect(self, m: Self::M, a: Self::D, b: Self::D) -> Self::D;
     fn dstore(self, a: Self::D) -> [f64; 8];
 }
 
@@ -224,10 +223,6 @@ impl Lanes for Scalar {
     #[inline(always)]
     fn dmul(self, a: Self::D, b: Self::D) -> Self::D {
         std::array::from_fn(|l| a[l] * b[l])
-    }
-    #[inline(always)]
-    fn dselect(self, m: Self::M, a: Self::D, b: Self::D) -> Self::D {
-        std::array::from_fn(|l| if m[l] { a[l] } else { b[l] })
     }
     #[inline(always)]
     fn dstore(self, a: Self::D) -> [f64; 8] {
@@ -475,19 +470,6 @@ mod avx2 {
             unsafe { (_mm256_mul_pd(a.0, b.0), _mm256_mul_pd(a.1, b.1)) }
         }
         #[inline(always)]
-        fn dselect(self, m: Self::M, a: Self::D, b: Self::D) -> Self::D {
-            unsafe {
-                let m = _mm256_castps_si256(m);
-                let lo = _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_castsi256_si128(m)));
-                let hi =
-                    _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_extracti128_si256::<1>(m)));
-                (
-                    _mm256_blendv_pd(b.0, a.0, lo),
-                    _mm256_blendv_pd(b.1, a.1, hi),
-                )
-            }
-        }
-        #[inline(always)]
         fn dstore(self, a: Self::D) -> [f64; 8] {
             let mut out = [0.0f64; 8];
             // SAFETY: eight doubles of room.
@@ -623,15 +605,17 @@ unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([S::F; 
             l.dadd(l.dmul(ex64, ex64), l.dmul(ey64, ey64)),
             l.dmul(ez64, ez64),
         );
+        // Masks applied in f32 (cheaper than on the f64 halves), with the same results: a
+        // degenerate spring gets no Newton step (`linear + 0`), and a spring to a lower vertex
+        // or padding adds `½·0·st² = +0` to an energy that starts at +0.
         let len64 = l.widen(len);
         let linear = l.dsub(len64, l.widen(rest));
-        let newton = l.dmul(
-            l.dsub(l2_64, l.dmul(len64, len64)),
-            l.widen(l.mul(half, inv)),
-        );
-        let stretch = l.dselect(ok, l.dadd(linear, newton), linear);
-        let term = l.dmul(l.dmul(l.dmul(half64, l.widen(k)), stretch), stretch);
-        energy = l.dselect(l.gt_i(j, own), l.dadd(energy, term), energy);
+        let half_inv = l.select(ok, l.mul(half, inv), zero);
+        let newton = l.dmul(l.dsub(l2_64, l.dmul(len64, len64)), l.widen(half_inv));
+        let stretch = l.dadd(linear, newton);
+        let k_upper = l.select(l.gt_i(j, own), k, zero);
+        let term = l.dmul(l.dmul(l.dmul(half64, l.widen(k_upper)), stretch), stretch);
+        energy = l.dadd(energy, term);
     }
     if let Some(a) = f.anchors {
         let ap = a.as_ptr().cast::<f32>();
