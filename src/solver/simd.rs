@@ -1102,4 +1102,35 @@ mod tests {
             assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
         }
     }
+
+    #[test]
+    fn energy_of_nearly_relaxed_springs_is_exact_to_f64_precision() {
+        // 2000 separate springs stretched by ~1e-6 of their length: an f32 length alone would
+        // be off by up to ~6e-8 of the length, i.e. ~10% of each spring's energy.
+        let mut positions = Vec::new();
+        let (mut edges, mut k, mut rest) = (Vec::new(), Vec::new(), Vec::new());
+        let mut exact = 0.0f64;
+        for i in 0..2000u32 {
+            let t = i as f32;
+            let a = Vec3::new(t * 0.1, (t * 0.3).cos(), 0.5);
+            let e = Vec3::new(
+                (t * 0.37).sin() * 0.01,
+                (t * 1.13).cos() * 0.003,
+                (t * 0.71).sin() * 0.02 + 1e-4,
+            );
+            let b = a + e;
+            let e64 = b.as_dvec3() - a.as_dvec3();
+            let r = (e64.length() * (1.0 + 1e-6 * (t * 0.1).sin() as f64)) as f32;
+            let kk = 100.0 + t;
+            let st = e64.length() - r as f64;
+            exact += 0.5 * kk as f64 * st * st;
+            positions.extend([a, b]);
+            edges.push([2 * i, 2 * i + 1]);
+            k.push(kk);
+            rest.push(r);
+        }
+        let system = SpringSystem::new(&positions, &edges, &k, &rest).unwrap();
+        let got = system.spring_energy(&positions).unwrap();
+        assert!(((got - exact) / exact).abs() < 1e-6, "{got} vs {exact}");
+    }
 }
