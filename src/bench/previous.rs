@@ -149,8 +149,8 @@ pub fn relax(system: &SpringSystem, x: &[Vec3], anchors: &[VertexAnchor], iterat
     let (offsets, springs) = system.csr();
     let anchors: Vec<VertexAnchor> = order.iter().map(|&o| anchors[o as usize]).collect();
     let frame = Frame {
-        offsets,
-        springs,
+        offsets: &offsets,
+        springs: &springs,
         anchors: &anchors,
     };
     let mut xi: Vec<Vec3> = order.iter().map(|&o| x[o as usize]).collect();

@@ -3,6 +3,8 @@
 
 mod kernels;
 mod reorder;
+mod sell;
+mod simd;
 
 pub use reorder::morton_order;
 
@@ -13,8 +15,9 @@ use thiserror::Error;
 
 use crate::mesh::TriMesh;
 use kernels::{Frame, Sums, dot, update_direction};
+use sell::Sell;
 
-/// One spring as seen from one of its ends: 12 bytes, stored twice per edge in CSR order.
+/// One spring as seen from one of its ends (the system stores each twice, once per end).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[repr(C)]
 pub struct Spring {
@@ -43,6 +46,13 @@ pub struct VertexAnchor {
 }
 
 impl VertexAnchor {
+    #[cfg_attr(
+        not(test),
+        expect(
+            dead_code,
+            reason = "the kernels evaluate this in eight lanes; the reference their tests match"
+        )
+    )]
     #[inline]
     fn force_energy(&self, x: Vec3) -> (Vec3, f64) {
         let d = x - self.target;
@@ -207,7 +217,8 @@ pub enum SolverError {
     },
 }
 
-/// A spring mesh ready to relax: CSR springs in a locality-friendly internal vertex order.
+/// A spring mesh ready to relax: springs in slices of eight vertices (for the SIMD kernels), in a
+/// locality-friendly internal vertex order.
 ///
 /// Vertices are renumbered along a Morton curve of their rest positions when the system is
 /// built (a shuffled input runs as fast as a well-ordered one); every public method takes and
@@ -232,8 +243,7 @@ pub enum SolverError {
 pub struct SpringSystem {
     order: Vec<u32>,
     rank: Vec<u32>,
-    offsets: Vec<u32>,
-    springs: Vec<Spring>,
+    sell: Sell,
     edge_count: usize,
 }
 
@@ -305,8 +315,7 @@ impl SpringSystem {
         Ok(Self {
             order,
             rank,
-            offsets,
-            springs,
+            sell: Sell::from_csr(&offsets, &springs),
             edge_count: edges.len(),
         })
     }
@@ -330,20 +339,21 @@ impl SpringSystem {
     pub fn edge_count(&self) -> usize {
         self.edge_count
     }
-    /// The springs in internal order as CSR: the half-springs of internal vertex `i` are
-    /// `springs[offsets[i]..offsets[i + 1]]`, sorted by their other end. For benchmarks and
+    /// The springs in internal order as CSR `(offsets, springs)`: the half-springs of internal
+    /// vertex `i` are `springs[offsets[i]..offsets[i + 1]]`, sorted by their other end. Built on
+    /// demand (the solver stores them in slices of eight vertices); for benchmarks and
     /// diagnostics.
-    pub fn csr(&self) -> (&[u32], &[Spring]) {
-        (&self.offsets, &self.springs)
+    pub fn csr(&self) -> (Vec<u32>, Vec<Spring>) {
+        self.sell.to_csr()
     }
     /// Internal order: `order()[i]` is the caller's index of internal vertex `i`.
     pub fn order(&self) -> &[u32] {
         &self.order
     }
-    /// Bytes of spring data per vertex (CSR offsets and two 12-byte half-springs per edge).
+    /// Bytes of spring data per vertex (two 12-byte half-springs per edge, padded to the
+    /// largest degree in each slice of eight vertices, and one offset per slice).
     pub fn bytes_per_vertex(&self) -> f64 {
-        let bytes = self.offsets.len() * 4 + self.springs.len() * std::mem::size_of::<Spring>();
-        bytes as f64 / self.vertex_count().max(1) as f64
+        self.sell.bytes() as f64 / self.vertex_count().max(1) as f64
     }
 
     fn to_internal<T: Copy + Send + Sync>(&self, data: &[T]) -> Vec<T> {
@@ -363,8 +373,8 @@ impl SpringSystem {
         anchors: Option<&'a [VertexAnchor]>,
     ) -> Frame<'a> {
         Frame {
-            offsets: &self.offsets,
-            springs: &self.springs,
+            sell: &self.sell,
+            isa: simd::Isa::detect(self.vertex_count()),
             external,
             pinned,
             anchors,

@@ -1,0 +1,1136 @@
+//! Eight-lane force and curvature kernels over the sliced springs: AVX2 when the CPU has it
+//! (checked at run time), otherwise a portable path with bit-identical results.
+//!
+//! Both paths run the same generic code over a [`Lanes`] implementation, lane by lane the same
+//! IEEE operations in the same order (no fused multiply-add, no approximate reciprocals), so the
+//! results do not depend on the CPU; and they are the operations of the plain per-vertex loop
+//! over CSR springs, so they do not depend on the layout either.
+#![expect(
+    unsafe_code,
+    reason = "AVX2 intrinsics and gathers from raw pointers behind a run-time CPU check; every \
+              gathered index is below the vertex count, asserted per chunk"
+)]
+
+use std::mem::{offset_of, size_of};
+
+use glam::Vec3;
+
+use super::VertexAnchor;
+use super::kernels::Sums;
+use super::sell::{LANES, Sell};
+
+/// Eight lanes of f32 (and f64) arithmetic.
+pub(crate) trait Lanes: Copy {
+    /// Eight f32.
+    type F: Copy;
+    /// Eight u32 indices.
+    type I: Copy;
+    /// Eight lane flags.
+    type M: Copy;
+    /// Eight f64.
+    type D: Copy;
+    fn splat(self, v: f32) -> Self::F;
+    fn load(self, p: &[f32]) -> Self::F;
+    fn load_i(self, p: &[u32]) -> Self::I;
+    /// `base[idx[l]]` per lane.
+    ///
+    /// # Safety
+    /// Every `base + idx[l]` must be in bounds of one allocation.
+    unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F;
+    /// Eight consecutive `Vec3` at `p` (24 floats) as their x, y and z lanes.
+    ///
+    /// # Safety
+    /// 24 floats from `p` must be readable.
+    unsafe fn load3(self, p: *const f32) -> [Self::F; 3];
+    /// Eight consecutive rows of eight floats at `p`, transposed: lane `l` of entry `c` is
+    /// `p[8 l + c]`.
+    ///
+    /// # Safety
+    /// 64 floats from `p` must be readable.
+    unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8];
+    /// `v[idx[l]]` per lane as x, y and z lanes, for `v` the `n` vectors at `p` and `j` the
+    /// indices `idx` already loaded.
+    ///
+    /// # Safety
+    /// `p` points to `3 n` readable floats and every `idx[l] < n` (eight of them).
+    unsafe fn vec3s(self, p: *const f32, n: usize, idx: &[u32], j: Self::I) -> [Self::F; 3];
+    /// Writes eight `Vec3` (24 floats) at `p` from their x, y and z lanes.
+    ///
+    /// # Safety
+    /// 24 floats from `p` must be writable.
+    unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]);
+    /// Lanes whose flag is set.
+    fn flags(self, p: &[bool]) -> Self::M;
+    /// Eight f64 from an array.
+    fn dfrom(self, a: [f64; 8]) -> Self::D;
+    /// `3 i` per lane.
+    fn times3(self, i: Self::I) -> Self::I;
+    /// `8 i` per lane.
+    fn times8(self, i: Self::I) -> Self::I;
+    fn add(self, a: Self::F, b: Self::F) -> Self::F;
+    fn sub(self, a: Self::F, b: Self::F) -> Self::F;
+    fn mul(self, a: Self::F, b: Self::F) -> Self::F;
+    fn div(self, a: Self::F, b: Self::F) -> Self::F;
+    fn sqrt(self, a: Self::F) -> Self::F;
+    /// `a > b ? a : b` (the second operand when either is NaN).
+    fn max(self, a: Self::F, b: Self::F) -> Self::F;
+    fn neg(self, a: Self::F) -> Self::F;
+    fn gt(self, a: Self::F, b: Self::F) -> Self::M;
+    fn le(self, a: Self::F, b: Self::F) -> Self::M;
+    /// `a > b` per lane (indices below 2³¹).
+    fn gt_i(self, a: Self::I, b: Self::I) -> Self::M;
+    /// `m ? a : b` per lane.
+    fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F;
+    fn store(self, a: Self::F) -> [f32; 8];
+    fn widen(self, a: Self::F) -> Self::D;
+    fn dsplat(self, v: f64) -> Self::D;
+    fn dadd(self, a: Self::D, b: Self::D) -> Self::D;
+    fn dsub(self, a: Self::D, b: Self::D) -> Self::D;
+    fn dmul(self, a: Self::D, b: Self::D) -> Self::D;
+    fn dstore(self, a: Self::D) -> [f64; 8];
+}
+
+/// The portable lanes: plain arrays.
+#[derive(Clone, Copy)]
+pub(crate) struct Scalar;
+
+impl Lanes for Scalar {
+    type F = [f32; 8];
+    type I = [u32; 8];
+    type M = [bool; 8];
+    type D = [f64; 8];
+    #[inline(always)]
+    fn splat(self, v: f32) -> Self::F {
+        [v; 8]
+    }
+    #[inline(always)]
+    fn load(self, p: &[f32]) -> Self::F {
+        std::array::from_fn(|l| p[l])
+    }
+    #[inline(always)]
+    fn load_i(self, p: &[u32]) -> Self::I {
+        std::array::from_fn(|l| p[l])
+    }
+    #[inline(always)]
+    unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
+        // SAFETY: the caller guarantees every index is in bounds.
+        std::array::from_fn(|l| unsafe { *base.add(idx[l] as usize) })
+    }
+    #[inline(always)]
+    unsafe fn load3(self, p: *const f32) -> [Self::F; 3] {
+        // SAFETY: the caller guarantees 24 readable floats.
+        std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(3 * l + c) }))
+    }
+    #[inline(always)]
+    unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
+        // SAFETY: the caller guarantees 64 readable floats.
+        std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(8 * l + c) }))
+    }
+    #[inline(always)]
+    unsafe fn vec3s(self, p: *const f32, _n: usize, idx: &[u32], _j: Self::I) -> [Self::F; 3] {
+        // SAFETY: the caller guarantees the indices are in bounds.
+        std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(3 * idx[l] as usize + c) }))
+    }
+    #[inline(always)]
+    unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
+        for l in 0..8 {
+            for (c, v) in v.iter().enumerate() {
+                // SAFETY: the caller guarantees 24 writable floats.
+                unsafe { *p.add(3 * l + c) = v[l] };
+            }
+        }
+    }
+    #[inline(always)]
+    fn flags(self, p: &[bool]) -> Self::M {
+        std::array::from_fn(|l| p[l])
+    }
+    #[inline(always)]
+    fn dfrom(self, a: [f64; 8]) -> Self::D {
+        a
+    }
+    #[inline(always)]
+    fn times3(self, i: Self::I) -> Self::I {
+        i.map(|i| i.wrapping_mul(3))
+    }
+    #[inline(always)]
+    fn times8(self, i: Self::I) -> Self::I {
+        i.map(|i| i.wrapping_mul(8))
+    }
+    #[inline(always)]
+    fn add(self, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| a[l] + b[l])
+    }
+    #[inline(always)]
+    fn sub(self, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| a[l] - b[l])
+    }
+    #[inline(always)]
+    fn mul(self, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| a[l] * b[l])
+    }
+    #[inline(always)]
+    fn div(self, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| a[l] / b[l])
+    }
+    #[inline(always)]
+    fn sqrt(self, a: Self::F) -> Self::F {
+        a.map(f32::sqrt)
+    }
+    #[inline(always)]
+    fn max(self, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| if a[l] > b[l] { a[l] } else { b[l] })
+    }
+    #[inline(always)]
+    fn neg(self, a: Self::F) -> Self::F {
+        a.map(|a| -a)
+    }
+    #[inline(always)]
+    fn gt(self, a: Self::F, b: Self::F) -> Self::M {
+        std::array::from_fn(|l| a[l] > b[l])
+    }
+    #[inline(always)]
+    fn le(self, a: Self::F, b: Self::F) -> Self::M {
+        std::array::from_fn(|l| a[l] <= b[l])
+    }
+    #[inline(always)]
+    fn gt_i(self, a: Self::I, b: Self::I) -> Self::M {
+        std::array::from_fn(|l| (a[l] as i32) > (b[l] as i32))
+    }
+    #[inline(always)]
+    fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
+        std::array::from_fn(|l| if m[l] { a[l] } else { b[l] })
+    }
+    #[inline(always)]
+    fn store(self, a: Self::F) -> [f32; 8] {
+        a
+    }
+    #[inline(always)]
+    fn widen(self, a: Self::F) -> Self::D {
+        a.map(f64::from)
+    }
+    #[inline(always)]
+    fn dsplat(self, v: f64) -> Self::D {
+        [v; 8]
+    }
+    #[inline(always)]
+    fn dadd(self, a: Self::D, b: Self::D) -> Self::D {
+        std::array::from_fn(|l| a[l] + b[l])
+    }
+    #[inline(always)]
+    fn dsub(self, a: Self::D, b: Self::D) -> Self::D {
+        std::array::from_fn(|l| a[l] - b[l])
+    }
+    #[inline(always)]
+    fn dmul(self, a: Self::D, b: Self::D) -> Self::D {
+        std::array::from_fn(|l| a[l] * b[l])
+    }
+    #[inline(always)]
+    fn dstore(self, a: Self::D) -> [f64; 8] {
+        a
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use std::arch::x86_64::*;
+
+    /// AVX2 lanes; only constructed after `is_x86_feature_detected!("avx2")`, and only used
+    /// inside `#[target_feature(enable = "avx2")]` functions (every method is inlined there).
+    #[derive(Clone, Copy)]
+    pub(crate) struct Avx2;
+
+    impl super::Lanes for Avx2 {
+        type F = __m256;
+        type I = __m256i;
+        type M = __m256;
+        type D = (__m256d, __m256d);
+        #[inline(always)]
+        fn splat(self, v: f32) -> Self::F {
+            unsafe { _mm256_set1_ps(v) }
+        }
+        #[inline(always)]
+        fn load(self, p: &[f32]) -> Self::F {
+            assert!(p.len() >= 8);
+            // SAFETY: eight values in bounds (asserted).
+            unsafe { _mm256_loadu_ps(p.as_ptr()) }
+        }
+        #[inline(always)]
+        fn load_i(self, p: &[u32]) -> Self::I {
+            assert!(p.len() >= 8);
+            // SAFETY: eight values in bounds (asserted).
+            unsafe { _mm256_loadu_si256(p.as_ptr().cast()) }
+        }
+        #[inline(always)]
+        unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
+            // SAFETY: the caller guarantees every index is in bounds.
+            unsafe { _mm256_i32gather_ps::<4>(base, idx) }
+        }
+        #[inline(always)]
+        unsafe fn load3(self, p: *const f32) -> [Self::F; 3] {
+            // SAFETY: the caller guarantees 24 readable floats. Float 3m + c is component c of
+            // vertex m; two blends gather each component's eight values into one register (out
+            // of order), one permutation puts them in vertex order.
+            unsafe {
+                let (a, b, c) = (
+                    _mm256_loadu_ps(p),
+                    _mm256_loadu_ps(p.add(8)),
+                    _mm256_loadu_ps(p.add(16)),
+                );
+                let x = _mm256_blend_ps::<0b0010_0100>(_mm256_blend_ps::<0b1001_0010>(a, b), c);
+                let y = _mm256_blend_ps::<0b0100_1001>(_mm256_blend_ps::<0b0010_0100>(a, b), c);
+                let z = _mm256_blend_ps::<0b1001_0010>(_mm256_blend_ps::<0b0100_1001>(a, b), c);
+                [
+                    _mm256_permutevar8x32_ps(x, _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5)),
+                    _mm256_permutevar8x32_ps(y, _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6)),
+                    _mm256_permutevar8x32_ps(z, _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7)),
+                ]
+            }
+        }
+        #[inline(always)]
+        unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
+            // SAFETY: the caller guarantees 64 readable floats. The usual 8x8 transpose.
+            unsafe {
+                let r: [__m256; 8] = std::array::from_fn(|l| _mm256_loadu_ps(p.add(8 * l)));
+                let t0 = _mm256_unpacklo_ps(r[0], r[1]);
+                let t1 = _mm256_unpackhi_ps(r[0], r[1]);
+                let t2 = _mm256_unpacklo_ps(r[2], r[3]);
+                let t3 = _mm256_unpackhi_ps(r[2], r[3]);
+                let t4 = _mm256_unpacklo_ps(r[4], r[5]);
+                let t5 = _mm256_unpackhi_ps(r[4], r[5]);
+                let t6 = _mm256_unpacklo_ps(r[6], r[7]);
+                let t7 = _mm256_unpackhi_ps(r[6], r[7]);
+                let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
+                let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
+                let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
+                let u3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
+                let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
+                let u5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
+                let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
+                let u7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
+                [
+                    _mm256_permute2f128_ps::<0x20>(u0, u4),
+                    _mm256_permute2f128_ps::<0x20>(u1, u5),
+                    _mm256_permute2f128_ps::<0x20>(u2, u6),
+                    _mm256_permute2f128_ps::<0x20>(u3, u7),
+                    _mm256_permute2f128_ps::<0x31>(u0, u4),
+                    _mm256_permute2f128_ps::<0x31>(u1, u5),
+                    _mm256_permute2f128_ps::<0x31>(u2, u6),
+                    _mm256_permute2f128_ps::<0x31>(u3, u7),
+                ]
+            }
+        }
+        #[inline(always)]
+        unsafe fn vec3s(self, p: *const f32, n: usize, idx: &[u32], j: Self::I) -> [Self::F; 3] {
+            assert!(idx.len() >= 8);
+            // SAFETY: the caller guarantees every index is below n. Each vector is read as 16
+            // bytes (x, y, z and the next vector's x) and eight of them are transposed: cheaper
+            // than three gathers on CPUs with slow gathers. The last vector has no successor,
+            // so a group that names it takes the gathers instead.
+            unsafe {
+                let last = _mm256_set1_epi32(n as i32 - 1);
+                if _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0 {
+                    return super::gather3(self, p, self.times3(j));
+                }
+                macro_rules! row {
+                    ($l:literal) => {
+                        _mm_loadu_ps(p.add(3 * *idx.get_unchecked($l) as usize))
+                    };
+                }
+                let v0 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(0)), row!(4));
+                let v1 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(1)), row!(5));
+                let v2 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(2)), row!(6));
+                let v3 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(3)), row!(7));
+                let t0 = _mm256_unpacklo_ps(v0, v1);
+                let t1 = _mm256_unpackhi_ps(v0, v1);
+                let t2 = _mm256_unpacklo_ps(v2, v3);
+                let t3 = _mm256_unpackhi_ps(v2, v3);
+                [
+                    _mm256_shuffle_ps::<0x44>(t0, t2),
+                    _mm256_shuffle_ps::<0xEE>(t0, t2),
+                    _mm256_shuffle_ps::<0x44>(t1, t3),
+                ]
+            }
+        }
+        #[inline(always)]
+        unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
+            // SAFETY: the caller guarantees 24 writable floats. The inverse of `load3`: put each
+            // component's values where the three output registers want them, then blend.
+            unsafe {
+                let x = _mm256_permutevar8x32_ps(v[0], _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5));
+                let y = _mm256_permutevar8x32_ps(v[1], _mm256_setr_epi32(5, 0, 3, 6, 1, 4, 7, 2));
+                let z = _mm256_permutevar8x32_ps(v[2], _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7));
+                let a = _mm256_blend_ps::<0b0010_0100>(_mm256_blend_ps::<0b1001_0010>(x, y), z);
+                let b = _mm256_blend_ps::<0b0010_0100>(_mm256_blend_ps::<0b1001_0010>(z, x), y);
+                let c = _mm256_blend_ps::<0b1001_0010>(_mm256_blend_ps::<0b0010_0100>(y, x), z);
+                _mm256_storeu_ps(p, a);
+                _mm256_storeu_ps(p.add(8), b);
+                _mm256_storeu_ps(p.add(16), c);
+            }
+        }
+        #[inline(always)]
+        fn flags(self, p: &[bool]) -> Self::M {
+            let bytes: [u8; 8] = std::array::from_fn(|l| p[l] as u8);
+            unsafe {
+                let wide = _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(i64::from_le_bytes(bytes)));
+                _mm256_castsi256_ps(_mm256_cmpgt_epi32(wide, _mm256_setzero_si256()))
+            }
+        }
+        #[inline(always)]
+        fn dfrom(self, a: [f64; 8]) -> Self::D {
+            unsafe {
+                (
+                    _mm256_loadu_pd(a.as_ptr()),
+                    _mm256_loadu_pd(a.as_ptr().add(4)),
+                )
+            }
+        }
+        #[inline(always)]
+        fn times3(self, i: Self::I) -> Self::I {
+            unsafe { _mm256_add_epi32(i, _mm256_add_epi32(i, i)) }
+        }
+        #[inline(always)]
+        fn times8(self, i: Self::I) -> Self::I {
+            unsafe { _mm256_slli_epi32::<3>(i) }
+        }
+        #[inline(always)]
+        fn add(self, a: Self::F, b: Self::F) -> Self::F {
+            unsafe { _mm256_add_ps(a, b) }
+        }
+        #[inline(always)]
+        fn sub(self, a: Self::F, b: Self::F) -> Self::F {
+            unsafe { _mm256_sub_ps(a, b) }
+        }
+        #[inline(always)]
+        fn mul(self, a: Self::F, b: Self::F) -> Self::F {
+            unsafe { _mm256_mul_ps(a, b) }
+        }
+        #[inline(always)]
+        fn div(self, a: Self::F, b: Self::F) -> Self::F {
+            unsafe { _mm256_div_ps(a, b) }
+        }
+        #[inline(always)]
+        fn sqrt(self, a: Self::F) -> Self::F {
+            unsafe { _mm256_sqrt_ps(a) }
+        }
+        #[inline(always)]
+        fn max(self, a: Self::F, b: Self::F) -> Self::F {
+            // maxps returns its second operand unless the first is greater.
+            unsafe { _mm256_max_ps(a, b) }
+        }
+        #[inline(always)]
+        fn neg(self, a: Self::F) -> Self::F {
+            unsafe { _mm256_xor_ps(a, _mm256_set1_ps(-0.0)) }
+        }
+        #[inline(always)]
+        fn gt(self, a: Self::F, b: Self::F) -> Self::M {
+            unsafe { _mm256_cmp_ps::<_CMP_GT_OQ>(a, b) }
+        }
+        #[inline(always)]
+        fn le(self, a: Self::F, b: Self::F) -> Self::M {
+            unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(a, b) }
+        }
+        #[inline(always)]
+        fn gt_i(self, a: Self::I, b: Self::I) -> Self::M {
+            unsafe { _mm256_castsi256_ps(_mm256_cmpgt_epi32(a, b)) }
+        }
+        #[inline(always)]
+        fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
+            unsafe { _mm256_blendv_ps(b, a, m) }
+        }
+        #[inline(always)]
+        fn store(self, a: Self::F) -> [f32; 8] {
+            let mut out = [0.0f32; 8];
+            // SAFETY: eight floats of room.
+            unsafe { _mm256_storeu_ps(out.as_mut_ptr(), a) };
+            out
+        }
+        #[inline(always)]
+        fn widen(self, a: Self::F) -> Self::D {
+            unsafe {
+                (
+                    _mm256_cvtps_pd(_mm256_castps256_ps128(a)),
+                    _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(a)),
+                )
+            }
+        }
+        #[inline(always)]
+        fn dsplat(self, v: f64) -> Self::D {
+            unsafe { (_mm256_set1_pd(v), _mm256_set1_pd(v)) }
+        }
+        #[inline(always)]
+        fn dadd(self, a: Self::D, b: Self::D) -> Self::D {
+            unsafe { (_mm256_add_pd(a.0, b.0), _mm256_add_pd(a.1, b.1)) }
+        }
+        #[inline(always)]
+        fn dsub(self, a: Self::D, b: Self::D) -> Self::D {
+            unsafe { (_mm256_sub_pd(a.0, b.0), _mm256_sub_pd(a.1, b.1)) }
+        }
+        #[inline(always)]
+        fn dmul(self, a: Self::D, b: Self::D) -> Self::D {
+            unsafe { (_mm256_mul_pd(a.0, b.0), _mm256_mul_pd(a.1, b.1)) }
+        }
+        #[inline(always)]
+        fn dstore(self, a: Self::D) -> [f64; 8] {
+            let mut out = [0.0f64; 8];
+            // SAFETY: eight doubles of room.
+            unsafe {
+                _mm256_storeu_pd(out.as_mut_ptr(), a.0);
+                _mm256_storeu_pd(out.as_mut_ptr().add(4), a.1);
+            }
+            out
+        }
+    }
+}
+
+/// Which lanes the kernels run on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Isa {
+    /// Portable arrays.
+    Scalar,
+    /// AVX2 (x86-64 only, detected at run time).
+    Avx2,
+}
+
+impl Isa {
+    /// The fastest available for `n` vertices (gather offsets must fit in i32).
+    pub fn detect(n: usize) -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if n < (1 << 27) && std::arch::is_x86_feature_detected!("avx2") {
+            return Self::Avx2;
+        }
+        let _ = n;
+        Self::Scalar
+    }
+}
+
+// Gathers index anchors as eight floats and positions as three.
+const _: () = assert!(size_of::<VertexAnchor>() == 32 && size_of::<Vec3>() == 12);
+const TARGET: usize = offset_of!(VertexAnchor, target) / 4;
+const NORMAL: usize = offset_of!(VertexAnchor, normal) / 4;
+const K_NORMAL: usize = offset_of!(VertexAnchor, k_normal) / 4;
+const K_TANGENT: usize = offset_of!(VertexAnchor, k_tangent) / 4;
+
+/// Inputs of a force gather, in internal order (all of length `sell.n`).
+pub(crate) struct ForceInputs<'a> {
+    pub sell: &'a Sell,
+    pub x: &'a [Vec3],
+    pub anchors: Option<&'a [VertexAnchor]>,
+    pub external: Option<&'a [Vec3]>,
+    pub pinned: &'a [bool],
+}
+
+/// The vertices of slice `s` (clamped to the last vertex past the end).
+#[inline(always)]
+fn own_lanes<S: Lanes>(l: S, sell: &Sell, s: usize) -> S::I {
+    let last = sell.n - 1;
+    let own: [u32; 8] = std::array::from_fn(|lane| (s * LANES + lane).min(last) as u32);
+    l.load_i(&own)
+}
+
+/// `(p[i], p[i + 1], p[i + 2])` per lane.
+///
+/// # Safety
+/// Every `p + i + 2` in bounds.
+#[inline(always)]
+pub(crate) unsafe fn gather3<S: Lanes>(l: S, p: *const f32, i: S::I) -> [S::F; 3] {
+    // SAFETY: the caller's contract.
+    unsafe { [l.gather(p, i), l.gather(p.add(1), i), l.gather(p.add(2), i)] }
+}
+
+/// Components of `v[i]` for the vertices `i` of slice `s` (`own`: their clamped indices).
+///
+/// # Safety
+/// `v` has `sell.n` entries.
+#[inline(always)]
+unsafe fn own_vec3<S: Lanes>(l: S, sell: &Sell, s: usize, own: S::I, v: &[Vec3]) -> [S::F; 3] {
+    let p = v.as_ptr().cast::<f32>();
+    // SAFETY: a full slice reads v[8s..8s + 8]; otherwise indices are clamped below n.
+    unsafe {
+        if (s + 1) * LANES <= sell.n {
+            l.load3(p.add(3 * LANES * s))
+        } else {
+            gather3(l, p, l.times3(own))
+        }
+    }
+}
+
+/// Net force (before pinning) and energy of the vertices of slice `s`.
+///
+/// # Safety
+/// All arrays of `f` have `f.sell.n` entries and every spring index is below it.
+#[inline(always)]
+unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([S::F; 3], S::D) {
+    let sell = f.sell;
+    let own = own_lanes(l, sell, s);
+    let own3 = l.times3(own);
+    let xp = f.x.as_ptr().cast::<f32>();
+    // SAFETY (all gathers): indices below n, arrays of n entries (the caller's contract).
+    let [yx, yy, yz] = unsafe { own_vec3(l, sell, s, own, f.x) };
+    let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
+    let zero = l.splat(0.0);
+    let (one, half, tiny) = (l.splat(1.0), l.splat(0.5), l.splat(f32::MIN_POSITIVE));
+    let half64 = l.dsplat(0.5);
+    let (mut fx, mut fy, mut fz) = (zero, zero, zero);
+    let mut energy = l.dsplat(0.0);
+    // One spring of every lane per step: force always, energy from the upper entries on
+    // (springs to higher vertices only).
+    let upper = sell.upper[s] as usize;
+    for e in sell.entries(s).step_by(LANES) {
+        let j = l.load_i(&sell.other[e..e + LANES]);
+        let k = l.load(&sell.k[e..e + LANES]);
+        let rest = l.load(&sell.rest[e..e + LANES]);
+        let idx = &sell.other[e..e + LANES];
+        // SAFETY: spring indices are below n, x has n entries.
+        let [zx, zy, zz] = unsafe { l.vec3s(xp, sell.n, idx, j) };
+        let (ex, ey, ez) = (l.sub(zx, yx), l.sub(zy, yy), l.sub(zz, yz));
+        let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
+        let len = l.sqrt(l2);
+        let inv = l.div(one, len);
+        let ok = l.gt(len, tiny);
+        let c = l.mul(l.mul(k, l.sub(len, rest)), inv);
+        fx = l.select(ok, l.add(fx, l.mul(ex, c)), fx);
+        fy = l.select(ok, l.add(fy, l.mul(ey, c)), fy);
+        fz = l.select(ok, l.add(fz, l.mul(ez, c)), fz);
+        if e < upper {
+            continue;
+        }
+        // Energy in f64 from exact differences, each spring once (from its lower end): the
+        // stretch `|e| − rest` with one Newton step on the f32 length.
+        let (ex64, ey64, ez64) = (
+            l.dsub(l.widen(zx), yx64),
+            l.dsub(l.widen(zy), yy64),
+            l.dsub(l.widen(zz), yz64),
+        );
+        let l2_64 = l.dadd(
+            l.dadd(l.dmul(ex64, ex64), l.dmul(ey64, ey64)),
+            l.dmul(ez64, ez64),
+        );
+        // Masks applied in f32 (cheaper than on the f64 halves), with the same results: a
+        // degenerate spring gets no Newton step (`linear + 0`), and a spring to a lower vertex
+        // or padding adds `½·0·st² = +0` to an energy that starts at +0.
+        let len64 = l.widen(len);
+        let linear = l.dsub(len64, l.widen(rest));
+        let half_inv = l.select(ok, l.mul(half, inv), zero);
+        let newton = l.dmul(l.dsub(l2_64, l.dmul(len64, len64)), l.widen(half_inv));
+        let stretch = l.dadd(linear, newton);
+        let k_upper = l.select(l.gt_i(j, own), k, zero);
+        let term = l.dmul(l.dmul(l.dmul(half64, l.widen(k_upper)), stretch), stretch);
+        energy = l.dadd(energy, term);
+    }
+    if let Some(a) = f.anchors {
+        let ap = a.as_ptr().cast::<f32>();
+        let rows = if (s + 1) * LANES <= sell.n {
+            // SAFETY: a full slice reads anchors 8s..8s + 8.
+            unsafe { l.load8x8(ap.add(8 * LANES * s)) }
+        } else {
+            let ia = l.times8(own);
+            let mut rows = [zero; 8];
+            for (o, row) in rows.iter_mut().enumerate() {
+                // SAFETY: anchors of n entries, indices below n.
+                *row = unsafe { l.gather(ap.add(o), ia) };
+            }
+            rows
+        };
+        let (tx, ty, tz) = (rows[TARGET], rows[TARGET + 1], rows[TARGET + 2]);
+        let (nx, ny, nz) = (rows[NORMAL], rows[NORMAL + 1], rows[NORMAL + 2]);
+        let (kn, kt) = (rows[K_NORMAL], rows[K_TANGENT]);
+        let (dx, dy, dz) = (l.sub(yx, tx), l.sub(yy, ty), l.sub(yz, tz));
+        let dn = l.add(l.add(l.mul(dx, nx), l.mul(dy, ny)), l.mul(dz, nz));
+        let (tx_, ty_, tz_) = (
+            l.sub(dx, l.mul(nx, dn)),
+            l.sub(dy, l.mul(ny, dn)),
+            l.sub(dz, l.mul(nz, dn)),
+        );
+        let kdn = l.mul(kn, dn);
+        fx = l.add(fx, l.neg(l.add(l.mul(nx, kdn), l.mul(tx_, kt))));
+        fy = l.add(fy, l.neg(l.add(l.mul(ny, kdn), l.mul(ty_, kt))));
+        fz = l.add(fz, l.neg(l.add(l.mul(nz, kdn), l.mul(tz_, kt))));
+        let (dx, dy, dz) = (
+            l.dsub(yx64, l.widen(tx)),
+            l.dsub(yy64, l.widen(ty)),
+            l.dsub(yz64, l.widen(tz)),
+        );
+        let (nx, ny, nz) = (l.widen(nx), l.widen(ny), l.widen(nz));
+        let dn = l.dadd(l.dadd(l.dmul(dx, nx), l.dmul(dy, ny)), l.dmul(dz, nz));
+        let (px, py, pz) = (
+            l.dsub(dx, l.dmul(nx, dn)),
+            l.dsub(dy, l.dmul(ny, dn)),
+            l.dsub(dz, l.dmul(nz, dn)),
+        );
+        let lt = l.dadd(l.dadd(l.dmul(px, px), l.dmul(py, py)), l.dmul(pz, pz));
+        let normal = l.dmul(l.dmul(l.dmul(half64, l.widen(kn)), dn), dn);
+        let tangent = l.dmul(l.dmul(half64, l.widen(kt)), lt);
+        energy = l.dadd(energy, l.dadd(normal, tangent));
+    }
+    if let Some(ext) = f.external {
+        let ep = ext.as_ptr().cast::<f32>();
+        let [gx, gy, gz] = unsafe { gather3(l, ep, own3) };
+        fx = l.add(fx, gx);
+        fy = l.add(fy, gy);
+        fz = l.add(fz, gz);
+        let work = l.dadd(
+            l.dadd(l.dmul(l.widen(gx), yx64), l.dmul(l.widen(gy), yy64)),
+            l.dmul(l.widen(gz), yz64),
+        );
+        energy = l.dsub(energy, work);
+    }
+    ([fx, fy, fz], energy)
+}
+
+/// One chunk of the force gather: vertices `first..first + r.len()` (a multiple of [`LANES`]
+/// apart from the last chunk), forces into `r`, partial sums returned.
+#[inline(always)]
+fn force_chunk<S: Lanes>(
+    l: S,
+    f: &ForceInputs<'_>,
+    first: usize,
+    r: &mut [Vec3],
+    w: Option<&[f32]>,
+) -> Sums {
+    let n = f.sell.n;
+    assert!(
+        f.x.len() == n
+            && f.pinned.len() == n
+            && f.anchors.is_none_or(|a| a.len() == n)
+            && f.external.is_none_or(|e| e.len() == n)
+            && w.is_none_or(|w| w.len() == n)
+            && first.is_multiple_of(LANES)
+            && first + r.len() <= n
+    );
+    // Per-lane sums (lane = vertex mod 8), added across lanes in order at the end.
+    let zero = l.splat(0.0);
+    let (mut energy_acc, mut rr, mut rzr, mut rz_old) =
+        (l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0));
+    for (s, out) in (first / LANES..).zip(r.chunks_mut(LANES)) {
+        // SAFETY: lengths asserted above; spring indices are below n by construction.
+        let ([fx, fy, fz], energy) = unsafe { force_slice(l, f, s) };
+        let base = s * LANES;
+        if out.len() == LANES {
+            let pinned = l.flags(&f.pinned[base..base + LANES]);
+            let (fx, fy, fz) = (
+                l.select(pinned, zero, fx),
+                l.select(pinned, zero, fy),
+                l.select(pinned, zero, fz),
+            );
+            energy_acc = l.dadd(energy_acc, energy);
+            let ff = l.add(l.add(l.mul(fx, fx), l.mul(fy, fy)), l.mul(fz, fz));
+            rr = l.dadd(rr, l.widen(ff));
+            let p = out.as_mut_ptr().cast::<f32>();
+            if let Some(w) = w {
+                let w = l.load(&w[base..base + LANES]);
+                // SAFETY: `out` holds eight vectors.
+                let [ox, oy, oz] = unsafe { l.load3(p) };
+                let fo = l.add(l.add(l.mul(fx, ox), l.mul(fy, oy)), l.mul(fz, oz));
+                rzr = l.dadd(rzr, l.widen(l.mul(w, ff)));
+                rz_old = l.dadd(rz_old, l.widen(l.mul(w, fo)));
+            }
+            // SAFETY: `out` holds eight vectors.
+            unsafe { l.store3(p, [fx, fy, fz]) };
+            continue;
+        }
+        // The last, partial slice: the same per-lane values, lane by lane.
+        let ([fx, fy, fz], energy) = ([l.store(fx), l.store(fy), l.store(fz)], l.dstore(energy));
+        let (mut e8, mut rr8, mut rzr8, mut rzo8) = ([0.0f64; 8], [0.0f64; 8], [0.0; 8], [0.0; 8]);
+        for (lane, slot) in out.iter_mut().enumerate() {
+            let i = base + lane;
+            let force = if f.pinned[i] {
+                Vec3::ZERO
+            } else {
+                Vec3::new(fx[lane], fy[lane], fz[lane])
+            };
+            e8[lane] = energy[lane];
+            let ff = force.dot(force);
+            rr8[lane] = ff as f64;
+            if let Some(w) = w {
+                rzr8[lane] = (w[i] * ff) as f64;
+                rzo8[lane] = (w[i] * force.dot(*slot)) as f64;
+            }
+            *slot = force;
+        }
+        energy_acc = l.dadd(energy_acc, l.dfrom(e8));
+        rr = l.dadd(rr, l.dfrom(rr8));
+        if w.is_some() {
+            rzr = l.dadd(rzr, l.dfrom(rzr8));
+            rz_old = l.dadd(rz_old, l.dfrom(rzo8));
+        }
+    }
+    let sum = |d: S::D| l.dstore(d).iter().fold(0.0f64, |a, b| a + b);
+    Sums {
+        energy: sum(energy_acc),
+        rr: sum(rr),
+        rzr: sum(rzr),
+        rz_old: sum(rz_old),
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn force_chunk_avx2(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3], w: Option<&[f32]>) -> Sums {
+    force_chunk(avx2::Avx2, f, first, r, w)
+}
+
+impl ForceInputs<'_> {
+    /// Forces of vertices `first..first + r.len()` into `r`, with the chunk's partial sums.
+    pub fn chunk(&self, isa: Isa, first: usize, r: &mut [Vec3], w: Option<&[f32]>) -> Sums {
+        match isa {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Isa::Avx2` is only returned after the CPU check.
+            Isa::Avx2 => unsafe { force_chunk_avx2(self, first, r, w) },
+            _ => force_chunk(Scalar, self, first, r, w),
+        }
+    }
+}
+
+/// Per-vertex `Σ_{j > i} dᵀ H_ij d` over the slices `slices`, in f32 per vertex.
+#[inline(always)]
+fn curvature_chunk<S: Lanes>(
+    l: S,
+    sell: &Sell,
+    x: &[Vec3],
+    d: &[Vec3],
+    anchors: Option<&[VertexAnchor]>,
+    slices: std::ops::Range<usize>,
+) -> f64 {
+    let n = sell.n;
+    assert!(
+        x.len() == n
+            && d.len() == n
+            && anchors.is_none_or(|a| a.len() == n)
+            && slices.end <= sell.slices()
+    );
+    let xp = x.as_ptr().cast::<f32>();
+    let dp = d.as_ptr().cast::<f32>();
+    let zero = l.splat(0.0);
+    let one = l.splat(1.0);
+    let tiny2 = l.splat(f32::MIN_POSITIVE * f32::MIN_POSITIVE);
+    // Per-lane sums (lane = vertex mod 8), added across lanes in order at the end.
+    let mut acc = l.dsplat(0.0);
+    for s in slices {
+        let own = own_lanes(l, sell, s);
+        // SAFETY (all gathers): indices below n, x and d of n entries (asserted).
+        let [xx, xy, xz] = unsafe { own_vec3(l, sell, s, own, x) };
+        let [dx, dy, dz] = unsafe { own_vec3(l, sell, s, own, d) };
+        let mut vertex = zero;
+        for e in sell.upper_entries(s).step_by(LANES) {
+            let j = l.load_i(&sell.other[e..e + LANES]);
+            let k = l.load(&sell.k[e..e + LANES]);
+            let rest = l.load(&sell.rest[e..e + LANES]);
+            let idx = &sell.other[e..e + LANES];
+            // SAFETY: spring indices are below n, x and d have n entries.
+            let [zx, zy, zz] = unsafe { l.vec3s(xp, n, idx, j) };
+            let [vx, vy, vz] = unsafe { l.vec3s(dp, n, idx, j) };
+            let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));
+            let (ux, uy, uz) = (l.sub(vx, dx), l.sub(vy, dy), l.sub(vz, dz));
+            let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
+            let uu = l.add(l.add(l.mul(ux, ux), l.mul(uy, uy)), l.mul(uz, uz));
+            let eu = l.add(l.add(l.mul(ex, ux), l.mul(ey, uy)), l.mul(ez, uz));
+            let inv = l.div(one, l.sqrt(l2));
+            let along = l.mul(eu, inv);
+            let along2 = l.mul(along, along);
+            let transverse = l.max(l.sub(uu, along2), zero);
+            let taut = l.max(l.sub(one, l.mul(rest, inv)), zero);
+            let term = l.mul(k, l.add(along2, l.mul(taut, transverse)));
+            let term = l.select(l.le(l2, tiny2), l.mul(k, uu), term);
+            vertex = l.select(l.gt_i(j, own), l.add(vertex, term), vertex);
+        }
+        let valid = (s + 1) * LANES <= n;
+        if valid {
+            acc = l.dadd(acc, l.widen(vertex));
+        } else {
+            let v = l.store(vertex);
+            acc = l.dadd(
+                acc,
+                l.dfrom(std::array::from_fn(|lane| {
+                    if s * LANES + lane < n {
+                        v[lane] as f64
+                    } else {
+                        0.0
+                    }
+                })),
+            );
+        }
+        if let Some(a) = anchors {
+            let term = if valid {
+                let ap = a.as_ptr().cast::<f32>();
+                // SAFETY: a full slice reads anchors 8s..8s + 8.
+                let rows = unsafe { l.load8x8(ap.add(8 * LANES * s)) };
+                let (nx, ny, nz) = (rows[NORMAL], rows[NORMAL + 1], rows[NORMAL + 2]);
+                let (kn, kt) = (rows[K_NORMAL], rows[K_TANGENT]);
+                let un = l.add(l.add(l.mul(dx, nx), l.mul(dy, ny)), l.mul(dz, nz));
+                let uu = l.add(l.add(l.mul(dx, dx), l.mul(dy, dy)), l.mul(dz, dz));
+                let un2 = l.mul(un, un);
+                let t = l.add(
+                    l.mul(l.mul(kn, un), un),
+                    l.mul(kt, l.max(l.sub(uu, un2), zero)),
+                );
+                l.widen(t)
+            } else {
+                l.dfrom(std::array::from_fn(|lane| {
+                    let i = s * LANES + lane;
+                    if i < n {
+                        a[i].curvature(d[i]) as f64
+                    } else {
+                        0.0
+                    }
+                }))
+            };
+            acc = l.dadd(acc, term);
+        }
+    }
+    l.dstore(acc).iter().fold(0.0f64, |a, b| a + b)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn curvature_chunk_avx2(
+    sell: &Sell,
+    x: &[Vec3],
+    d: &[Vec3],
+    anchors: Option<&[VertexAnchor]>,
+    slices: std::ops::Range<usize>,
+) -> f64 {
+    curvature_chunk(avx2::Avx2, sell, x, d, anchors, slices)
+}
+
+/// `Σ dᵀ H d` contributions of the vertices in `slices` (see [`Frame::curvature`]).
+///
+/// [`Frame::curvature`]: super::kernels::Frame::curvature
+pub(crate) fn curvature(
+    isa: Isa,
+    sell: &Sell,
+    x: &[Vec3],
+    d: &[Vec3],
+    anchors: Option<&[VertexAnchor]>,
+    slices: std::ops::Range<usize>,
+) -> f64 {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Isa::Avx2` is only returned after the CPU check.
+        Isa::Avx2 => unsafe { curvature_chunk_avx2(sell, x, d, anchors, slices) },
+        _ => curvature_chunk(Scalar, sell, x, d, anchors, slices),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::SpringSystem;
+
+    /// A shuffled, irregular spring net (a 23 x 19 grid with diagonals and some long springs,
+    /// listed in a scrambled vertex order), anchors, external forces and a few pins.
+    fn net() -> (
+        SpringSystem,
+        Vec<Vec3>,
+        Vec<VertexAnchor>,
+        Vec<Vec3>,
+        Vec<bool>,
+    ) {
+        let (w, h) = (23u32, 19u32);
+        let n = (w * h) as usize;
+        let scramble = |v: u32| (v * 211) % (w * h);
+        let mut rest_pos = vec![Vec3::ZERO; n];
+        for y in 0..h {
+            for x in 0..w {
+                let p = Vec3::new(x as f32 * 0.01, y as f32 * 0.01, 0.002 * (x as f32).sin());
+                rest_pos[scramble(y * w + x) as usize] = p;
+            }
+        }
+        let mut edges = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                let v = y * w + x;
+                if x + 1 < w {
+                    edges.push([scramble(v), scramble(v + 1)]);
+                }
+                if y + 1 < h {
+                    edges.push([scramble(v), scramble(v + w)]);
+                }
+                if x + 1 < w && y + 1 < h && (x + y) % 3 != 0 {
+                    edges.push([scramble(v + w + 1), scramble(v)]);
+                }
+                if v % 17 == 0 {
+                    edges.push([scramble(v), scramble((v * 7 + 5) % (w * h))]);
+                }
+            }
+        }
+        edges.retain(|[a, b]| a != b);
+        let k: Vec<f32> = (0..edges.len()).map(|e| 50.0 + (e % 13) as f32).collect();
+        let rest: Vec<f32> = edges
+            .iter()
+            .map(|&[a, b]| rest_pos[a as usize].distance(rest_pos[b as usize]) * 0.97)
+            .collect();
+        let system = SpringSystem::new(&rest_pos, &edges, &k, &rest).unwrap();
+        let x: Vec<Vec3> = rest_pos
+            .iter()
+            .enumerate()
+            .map(|(i, p)| *p + 0.001 * Vec3::new((i as f32).sin(), (i as f32 * 1.3).cos(), 0.5))
+            .collect();
+        // A degenerate spring: two vertices at the same place.
+        let mut x = x;
+        let [a, b] = edges[5];
+        x[b as usize] = x[a as usize];
+        let anchors = (0..n)
+            .map(|i| VertexAnchor {
+                target: rest_pos[i],
+                normal: Vec3::new(0.0, (i as f32).sin(), (i as f32).cos()).normalize(),
+                k_normal: 20.0 + i as f32 * 0.01,
+                k_tangent: 2.0,
+            })
+            .collect();
+        let ext = (0..n)
+            .map(|i| Vec3::new(0.0, 0.0, -0.01 * (i % 5) as f32))
+            .collect();
+        let pinned = (0..n).map(|i| i % 31 == 4).collect();
+        (system, x, anchors, ext, pinned)
+    }
+
+    /// The plain per-vertex loop over CSR springs the kernels must reproduce bit for bit.
+    fn reference(
+        sell: &Sell,
+        x: &[Vec3],
+        anchors: &[VertexAnchor],
+        ext: &[Vec3],
+        pinned: &[bool],
+    ) -> (Vec<Vec3>, f64) {
+        // Energy summed per lane (vertex mod 8), then across lanes in order.
+        let mut lanes = [0.0f64; 8];
+        let forces = (0..sell.n)
+            .map(|i| {
+                let yi = x[i];
+                let (mut force, mut energy) = (Vec3::ZERO, 0.0f64);
+                for s in sell.springs_of(i) {
+                    let j = s.other as usize;
+                    let e = x[j] - yi;
+                    let len = e.length();
+                    let inv_len = 1.0 / len;
+                    if len > f32::MIN_POSITIVE {
+                        force += e * (s.k * (len - s.rest) * inv_len);
+                    }
+                    if j > i {
+                        let l2 = (x[j].as_dvec3() - yi.as_dvec3()).length_squared();
+                        let len64 = len as f64;
+                        let linear = len64 - s.rest as f64;
+                        let st = if len > f32::MIN_POSITIVE {
+                            linear + (l2 - len64 * len64) * (0.5 * inv_len) as f64
+                        } else {
+                            linear
+                        };
+                        energy += 0.5 * s.k as f64 * st * st;
+                    }
+                }
+                let (fa, ea) = anchors[i].force_energy(yi);
+                force += fa;
+                energy += ea;
+                force += ext[i];
+                energy -= ext[i].as_dvec3().dot(yi.as_dvec3());
+                lanes[i % 8] += energy;
+                if pinned[i] { Vec3::ZERO } else { force }
+            })
+            .collect();
+        (forces, lanes.iter().fold(0.0, |a, b| a + b))
+    }
+
+    fn isas() -> Vec<Isa> {
+        let mut v = vec![Isa::Scalar];
+        if Isa::detect(1000) != Isa::Scalar {
+            v.push(Isa::detect(1000));
+        }
+        v
+    }
+
+    #[test]
+    fn forces_and_energy_match_the_plain_loop_bit_for_bit() {
+        let (system, x, anchors, ext, pinned) = net();
+        let sell = &system.sell;
+        let xi = system.to_internal(&x);
+        let (ai, ei, pi) = (
+            system.to_internal(&anchors),
+            system.to_internal(&ext),
+            system.to_internal(&pinned),
+        );
+        let (want, want_energy) = reference(sell, &xi, &ai, &ei, &pi);
+        for isa in isas() {
+            let inputs = ForceInputs {
+                sell,
+                x: &xi,
+                anchors: Some(&ai),
+                external: Some(&ei),
+                pinned: &pi,
+            };
+            let mut r = vec![Vec3::ZERO; sell.n];
+            let sums = inputs.chunk(isa, 0, &mut r, None);
+            for (i, (got, want)) in r.iter().zip(&want).enumerate() {
+                let bits = |v: &Vec3| v.to_array().map(f32::to_bits);
+                assert_eq!(bits(got), bits(want), "{isa:?}: force of vertex {i}");
+            }
+            assert_eq!(sums.energy.to_bits(), want_energy.to_bits(), "{isa:?}");
+            assert!(r.iter().zip(&pi).all(|(f, p)| !p || *f == Vec3::ZERO));
+        }
+    }
+
+    #[test]
+    fn curvature_matches_the_plain_loop_bit_for_bit() {
+        let (system, x, anchors, _, _) = net();
+        let sell = &system.sell;
+        let xi = system.to_internal(&x);
+        let ai = system.to_internal(&anchors);
+        let d: Vec<Vec3> = (0..sell.n)
+            .map(|i| Vec3::new((i as f32 * 0.7).sin(), (i as f32 * 0.3).cos(), 0.2) * 1e-3)
+            .collect();
+        let mut lanes = [0.0f64; 8];
+        for i in 0..sell.n {
+            let mut vertex = 0.0f32;
+            for s in sell.springs_of(i).filter(|s| s.other as usize > i) {
+                let e = xi[s.other as usize] - xi[i];
+                let u = d[s.other as usize] - d[i];
+                let l2 = e.length_squared();
+                if l2 <= f32::MIN_POSITIVE * f32::MIN_POSITIVE {
+                    vertex += s.k * u.length_squared();
+                    continue;
+                }
+                let inv_len = 1.0 / l2.sqrt();
+                let along = e.dot(u) * inv_len;
+                let transverse = (u.length_squared() - along * along).max(0.0);
+                vertex += s.k * (along * along + (1.0 - s.rest * inv_len).max(0.0) * transverse);
+            }
+            lanes[i % 8] += vertex as f64;
+            lanes[i % 8] += ai[i].curvature(d[i]) as f64;
+        }
+        let want = lanes.iter().fold(0.0f64, |a, b| a + b);
+        for isa in isas() {
+            let got = curvature(isa, sell, &xi, &d, Some(&ai), 0..sell.slices());
+            assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
+        }
+    }
+
+    #[test]
+    fn energy_of_nearly_relaxed_springs_is_exact_to_f64_precision() {
+        // 2000 separate springs stretched by ~1e-6 of their length: an f32 length alone would
+        // be off by up to ~6e-8 of the length, i.e. ~10% of each spring's energy.
+        let mut positions = Vec::new();
+        let (mut edges, mut k, mut rest) = (Vec::new(), Vec::new(), Vec::new());
+        let mut exact = 0.0f64;
+        for i in 0..2000u32 {
+            let t = i as f32;
+            let a = Vec3::new(t * 0.1, (t * 0.3).cos(), 0.5);
+            let e = Vec3::new(
+                (t * 0.37).sin() * 0.01,
+                (t * 1.13).cos() * 0.003,
+                (t * 0.71).sin() * 0.02 + 1e-4,
+            );
+            let b = a + e;
+            let e64 = b.as_dvec3() - a.as_dvec3();
+            let r = (e64.length() * (1.0 + 1e-6 * (t * 0.1).sin() as f64)) as f32;
+            let kk = 100.0 + t;
+            let st = e64.length() - r as f64;
+            exact += 0.5 * kk as f64 * st * st;
+            positions.extend([a, b]);
+            edges.push([2 * i, 2 * i + 1]);
+            k.push(kk);
+            rest.push(r);
+        }
+        let system = SpringSystem::new(&positions, &edges, &k, &rest).unwrap();
+        let got = system.spring_energy(&positions).unwrap();
+        assert!(((got - exact) / exact).abs() < 1e-6, "{got} vs {exact}");
+    }
+}
