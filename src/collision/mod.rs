@@ -629,9 +629,8 @@ impl SkinCollision {
                         if m.global == 0.0 && v == 0.0 {
                             continue;
                         }
-                        let speed = m.shift
-                            + m.angle * (p1.distance(m.pose.translation) + v + m.shift)
-                            + v;
+                        let speed =
+                            m.shift + m.angle * (p1.distance(m.pose.translation) + v + m.shift) + v;
                         let motion = (speed + m.deform).min(m.global + v);
                         if motion <= worst {
                             continue;

@@ -750,7 +750,11 @@ impl Drape {
             let proj = ball.project_point(&pose, *p, false);
             assert!(!proj.is_inside, "vertex {i} inside");
             let gap = proj.point.distance(*p) - self.h;
-            assert!(gap > -1e-5, "vertex {i} closer than the thickness by {}", -gap);
+            assert!(
+                gap > -1e-5,
+                "vertex {i} closer than the thickness by {}",
+                -gap
+            );
             if self.pinned[i] {
                 continue;
             }
@@ -760,7 +764,10 @@ impl Drape {
                 let push = f[i].dot(n);
                 let tangential = (f[i] - n * push).length();
                 assert!(push < tol_n, "contact {i} pulled off by {push} N");
-                assert!(tangential < tol_n, "contact {i}: tangential force {tangential} N");
+                assert!(
+                    tangential < tol_n,
+                    "contact {i}: tangential force {tangential} N"
+                );
             } else {
                 assert!(
                     f[i].length() < tol_n,
@@ -804,4 +811,77 @@ fn draped_sheet_converges_to_the_kkt_point_of_the_contact_problem() {
     );
     eprintln!("blind drape: {old:?}");
     assert_ne!(old.stop, StopReason::Converged, "{old:?}");
+}
+
+#[test]
+fn far_fast_colliders_cost_no_substep_near_ones_do() {
+    let h = 0.01;
+    let mesh = sheet(11, 1.0, 0.0);
+    let config = ContactConfig {
+        thickness_m: h,
+        ..ContactConfig::DEFAULT
+    };
+    let mut contact = SkinCollision::new(mesh.positions().len(), config).unwrap();
+    let far = contact.add_collider(
+        ColliderMesh::ball(0.1)
+            .unwrap()
+            .with_pose(Pose::from_translation(Vec3::new(5.0, 0.0, 0.0))),
+    );
+    let near = contact.add_collider(
+        ColliderMesh::ball(0.1)
+            .unwrap()
+            .with_pose(Pose::from_translation(Vec3::new(0.0, 0.0, -0.2))),
+    );
+    let mut x = mesh.positions().to_vec();
+    contact.advance_frame(&mut x).unwrap();
+    // 3 m in one frame, 300 thicknesses, but never within 4 m of the sheet.
+    let moved = Pose::from_translation(Vec3::new(5.0, 3.0, 0.0));
+    contact.collider_mut(far).unwrap().set_pose(moved).unwrap();
+    assert_eq!(contact.begin_frame(&mut x).unwrap().substeps, 1);
+    while contact.substep(&mut x).unwrap() > 0 {}
+    // The near ball rises 0.15 m, through the sheet's plane: the relative motion must be split
+    // into steps of at most half a thickness.
+    let rise = Pose::from_translation(Vec3::new(0.0, 0.0, -0.05));
+    contact.collider_mut(near).unwrap().set_pose(rise).unwrap();
+    let plan = contact.begin_frame(&mut x).unwrap();
+    assert!(plan.substeps >= 30, "{plan:?}");
+    while contact.substep(&mut x).unwrap() > 0 {}
+    // Both at once: the near one decides.
+    contact
+        .collider_mut(far)
+        .unwrap()
+        .set_pose(Pose::from_translation(Vec3::new(5.0, 0.0, 0.0)))
+        .unwrap();
+    contact
+        .collider_mut(near)
+        .unwrap()
+        .set_pose(Pose::from_translation(Vec3::new(0.0, 0.0, -0.2)))
+        .unwrap();
+    let both = contact.begin_frame(&mut x).unwrap();
+    assert!(both.substeps >= 30 && both.substeps < 300, "{both:?}");
+}
+
+#[test]
+fn contact_solve_is_bit_identical_for_any_thread_count() {
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let (mut drape, mut contact) = Drape::new(33);
+            let report = drape.relax(&budget(300), &mut contact);
+            (drape.x, report)
+        })
+    };
+    let (x1, r1) = run(1);
+    let (x2, r2) = run(2);
+    let bits = |x: &[Vec3]| {
+        x.iter()
+            .flat_map(|p| p.to_array().map(f32::to_bits))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&x1), bits(&x2));
+    assert_eq!(r1.iterations, r2.iterations);
+    assert_eq!(r1.energy.to_bits(), r2.energy.to_bits());
 }

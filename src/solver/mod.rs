@@ -629,6 +629,12 @@ impl SpringSystem {
                 restart = contacts.constrain(&mut r, &inv_diag, &mut sums);
                 p.hold(&contacts.held_flags);
             }
+            if restart {
+                // A new contact is progress the residual does not show (it may jump up as
+                // the contact set changes): the stagnation window starts again.
+                best_at = iterations;
+                best = sums.rr.sqrt();
+            }
             if config.record_energy {
                 history.push(energy);
             }
