@@ -229,6 +229,19 @@ pub struct ContactDiagnostics {
     pub length_mismatch: bool,
 }
 
+/// Where a skin vertex last touched a collider: the surface point friction anchors it to at
+/// the start of the next frame (it moves with the collider). See
+/// [`SkinCollision::friction_anchors`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FrictionAnchor {
+    /// The collider's index ([`ColliderId`]`.0`).
+    pub collider: u32,
+    /// The triangle (0 for primitives).
+    pub part: u32,
+    /// Barycentric coordinates on the triangle, or the rest-frame point for primitives.
+    pub coords: Vec3,
+}
+
 /// A point of a collider's surface: `coords` on `part`, as in [`SurfaceProjection`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Contact {
@@ -507,6 +520,73 @@ impl SkinCollision {
         let n = self.thickness.len();
         self.states = vec![VertexState::NEW; n];
         self.slots = vec![Slot::NEW; n * self.colliders.len()];
+    }
+
+    /// Forgets the query cache (closest triangles, distance bounds, last positions) but keeps
+    /// each vertex's last contact, the friction anchor of the next frame: what a frame that
+    /// must depend only on checkpointed state starts from (see
+    /// [`friction_anchors`](Self::friction_anchors)).
+    pub fn clear_query_cache(&mut self) {
+        for s in &mut self.states {
+            *s = VertexState {
+                contact: s.contact,
+                ..VertexState::NEW
+            };
+        }
+        self.slots = vec![Slot::NEW; self.states.len() * self.colliders.len()];
+        self.held_vertices.clear();
+        self.active.clear();
+        self.active_owner.clear();
+    }
+
+    /// Each vertex's last contact (caller's order; `None`: not touching): where friction
+    /// anchors it at the start of the next frame. Part of a checkpoint when friction is on.
+    pub fn friction_anchors(&self) -> Vec<Option<FrictionAnchor>> {
+        self.states
+            .iter()
+            .map(|s| {
+                (s.contact.collider != NONE).then_some(FrictionAnchor {
+                    collider: s.contact.collider,
+                    part: s.contact.part,
+                    coords: s.contact.coords,
+                })
+            })
+            .collect()
+    }
+
+    /// Restores [`friction_anchors`](Self::friction_anchors) (one per vertex).
+    pub fn set_friction_anchors(
+        &mut self,
+        anchors: &[Option<FrictionAnchor>],
+    ) -> Result<(), CollisionError> {
+        if anchors.len() != self.states.len() {
+            return Err(CollisionError::Length {
+                what: "friction anchors",
+                given: anchors.len(),
+                expected: self.states.len(),
+            });
+        }
+        for (v, a) in anchors.iter().enumerate() {
+            if let Some(a) = a {
+                if a.collider as usize >= self.colliders.len() {
+                    return Err(CollisionError::UnknownCollider(a.collider));
+                }
+                if !a.coords.is_finite() {
+                    return Err(CollisionError::NonFinite {
+                        what: "friction anchor of vertex",
+                        index: v,
+                    });
+                }
+            }
+        }
+        for (s, a) in self.states.iter_mut().zip(anchors) {
+            s.contact = a.map_or(Contact::NONE, |a| Contact {
+                collider: a.collider,
+                part: a.part,
+                coords: a.coords,
+            });
+        }
+        Ok(())
     }
 
     /// Starts a frame after the colliders were moved: `x` (caller's order) holds the skin's

@@ -333,6 +333,16 @@ fn sheet_draped_over_a_sphere_rests_at_the_thickness() {
 /// Sheet over a ball sliding along x by `shift` over `frames` frames; returns the sheet at the
 /// end and at the start.
 fn slide(friction: f32, shift: f32, frames: u32) -> (Vec<Vec3>, Vec<Vec3>, Vec<Vec3>) {
+    slide_with(friction, shift, frames, |_| {})
+}
+
+/// [`slide`], calling `between` before every frame.
+fn slide_with(
+    friction: f32,
+    shift: f32,
+    frames: u32,
+    between: impl Fn(&mut SkinCollision),
+) -> (Vec<Vec3>, Vec<Vec3>, Vec<Vec3>) {
     let (r, h) = (0.3, 0.01);
     let start = Vec3::new(-0.5 * shift, 0.0, -0.22);
     let mesh = sheet(11, 1.0, 0.0);
@@ -383,6 +393,7 @@ fn slide(friction: f32, shift: f32, frames: u32) -> (Vec<Vec3>, Vec<Vec3>, Vec<V
             .unwrap()
             .set_pose(Pose::from_translation(c))
             .unwrap();
+        between(&mut contact);
         relax(&mut contact, &mut x);
     }
     // A fresh drape over the ball at its final place.
@@ -884,4 +895,43 @@ fn contact_solve_is_bit_identical_for_any_thread_count() {
     assert_eq!(bits(&x1), bits(&x2));
     assert_eq!(r1.iterations, r2.iterations);
     assert_eq!(r1.energy.to_bits(), r2.energy.to_bits());
+}
+
+/// Friction across frames as the ECS runs it: the query cache cleared before every frame (exact
+/// checkpoints) keeps each vertex's last contact, so a ball sliding over ten frames with
+/// `friction == 1` carries the sheet along, and without friction it does not. Clearing
+/// everything (the anchors too) loses the grip at every frame.
+#[test]
+fn friction_carries_the_sheet_across_frames_with_the_query_cache_cleared() {
+    let shift = 0.1;
+    let (stuck, initial, _) = slide_with(1.0, shift, 10, SkinCollision::clear_query_cache);
+    let carried_stuck = carried(&stuck, &initial);
+    assert!(
+        carried_stuck > 0.5 * shift,
+        "sticking carried only {carried_stuck}"
+    );
+    let (free, initial_free, _) = slide_with(0.0, shift, 10, SkinCollision::clear_query_cache);
+    let carried_free = carried(&free, &initial_free);
+    assert!(
+        carried_free.abs() < 0.2 * shift,
+        "frictionless carried {carried_free}"
+    );
+    let (lost, initial_lost, _) = slide_with(1.0, shift, 10, SkinCollision::clear_cache);
+    let carried_lost = carried(&lost, &initial_lost);
+    assert!(
+        carried_lost < carried_stuck,
+        "{carried_lost} >= {carried_stuck}"
+    );
+    // The anchors round-trip through their public form.
+    let mut contact = SkinCollision::new(2, ContactConfig::DEFAULT).unwrap();
+    contact.add_collider(ColliderMesh::ball(1.0).unwrap());
+    let mut x = vec![Vec3::new(0.0, 0.0, 0.5), Vec3::new(0.0, 0.0, 3.0)];
+    contact.advance_frame(&mut x).unwrap();
+    let anchors = contact.friction_anchors();
+    assert!(anchors[0].is_some() && anchors[1].is_none());
+    let mut other = SkinCollision::new(2, ContactConfig::DEFAULT).unwrap();
+    assert!(other.set_friction_anchors(&anchors).is_err()); // no collider 0 there
+    other.add_collider(ColliderMesh::ball(1.0).unwrap());
+    other.set_friction_anchors(&anchors).unwrap();
+    assert_eq!(other.friction_anchors(), anchors);
 }

@@ -451,8 +451,12 @@ impl SpringSystem {
         self.relax_projected(x, loads, config, None)
     }
 
-    /// [`relax`](Self::relax) with a constraint projection after every accepted step. A
-    /// projection may raise the energy: the monotone-energy guarantee holds between projections.
+    /// [`relax`](Self::relax) with a constraint projection before the first step and after
+    /// every accepted one. A projection may raise the energy: the monotone-energy guarantee holds
+    /// between projections. The contacts the projection reports
+    /// ([`Projection::active_contacts`]) and whose net force pushes into the constraint are held:
+    /// their normal force leaves the residual and the search direction, so the solve converges
+    /// on the contact set (see the module documentation).
     pub fn relax_projected(
         &self,
         x: &mut [Vec3],
