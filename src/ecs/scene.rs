@@ -961,22 +961,19 @@ pub fn capture_state(world: &World) -> Result<SceneState, SceneError> {
         .ok_or(SceneError::NotSpawned)?;
     let (clock, clip) = (animation.clock, animation.clip);
     let mut query = world
-        .try_query::<(
-            &SceneMesh,
-            &SkinPositions,
-            &LastValidPositions,
-            Option<&SkinContact>,
-        )>()
+        .try_query::<(Entity, &SceneMesh, &SkinPositions, &LastValidPositions)>()
         .ok_or(SceneError::NotSpawned)?;
     let mut skins: Vec<SkinState> = query
         .iter(world)
-        .map(|(tag, x, last, contact)| SkinState {
+        .map(|(entity, tag, x, last)| SkinState {
             name: tag.name.clone(),
             node: tag.node,
             primitive: tag.primitive,
             positions: x.0.clone(),
             last_valid: last.0.clone(),
-            friction_anchors: contact.map_or_else(Vec::new, |c| c.collision.friction_anchors()),
+            friction_anchors: world
+                .get::<SkinContact>(entity)
+                .map_or_else(Vec::new, |c| c.collision.friction_anchors()),
         })
         .collect();
     skins.sort_by_key(|s| (s.node, s.primitive));
