@@ -300,6 +300,20 @@ impl ColliderMesh {
         &self.local_aabb
     }
 
+    /// The pose at the end of the previous frame.
+    pub(crate) fn prev_pose(&self) -> Pose {
+        self.prev_pose
+    }
+
+    /// Largest rest-frame vertex displacement of a deforming mesh since the previous frame, m
+    /// (0 for rigid colliders).
+    pub(crate) fn frame_deform_m(&self) -> f32 {
+        match &self.shape {
+            Shape::Mesh(m) => max_displacement(&m.prev, &m.current),
+            _ => 0.0,
+        }
+    }
+
     /// Bound on how far any surface point moved since the previous frame, m.
     pub(crate) fn frame_motion_m(&self) -> f32 {
         let deform = match &self.shape {
