@@ -3,12 +3,15 @@
 use glam::Vec3;
 use parry3d::bounding_volume::Aabb;
 use parry3d::math::Pose;
+use parry3d::partitioning::TraversalAction;
+use parry3d::query::PointQuery;
 use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{
     Ball, Capsule, CompositeShapeRef, TriMesh as ParryMesh, TrianglePointLocation,
 };
 
 use super::CollisionError;
+use super::cache::{PATCH, Patch};
 use crate::mesh::TriMesh;
 
 /// Marks "no triangle" in neighbour tables and caches.
@@ -373,6 +376,33 @@ impl ColliderMesh {
         }
     }
 
+    /// Projects a rest-frame point with the help of a vertex's `patch` (see [`Patch`]): from
+    /// the patch alone while its certificate holds (`slack_m`: a bound on how far the point
+    /// and the surface moved in total since it was built), else by an exact search that
+    /// rebuilds it around `hint`. Returns the projection and whether the patch answered; the
+    /// projection is the exact one either way. Primitives need no patch.
+    pub(crate) fn project_patched(
+        &self,
+        p: Vec3,
+        hint: u32,
+        patch: &mut Patch,
+        slack_m: Option<f32>,
+        margin_m: f32,
+    ) -> (SurfaceProjection, bool) {
+        match &self.shape {
+            Shape::Mesh(m) => {
+                if let Some(slack) = slack_m
+                    && patch.len > 0
+                    && let Some(r) = m.project_on_patch(p, patch, slack)
+                {
+                    return (r, true);
+                }
+                (m.project_and_certify(p, hint, margin_m, patch), false)
+            }
+            _ => (self.project_local(p, hint), false),
+        }
+    }
+
     /// The current rest-frame position of a surface point given by `part` and `coords` (see
     /// [`SurfaceProjection`]).
     pub(crate) fn local_surface_point(&self, part: u32, coords: Vec3) -> Vec3 {
@@ -434,16 +464,27 @@ impl MeshShape {
         sum.normalize_or_zero()
     }
 
+    /// The projection of `p` on triangle `t` exactly as parry's BVH search computes it for a
+    /// leaf, with its distance (the search's cost).
+    #[inline]
+    fn triangle_projection(
+        &self,
+        t: u32,
+        p: Vec3,
+    ) -> (f32, parry3d::query::PointProjection, TrianglePointLocation) {
+        use parry3d::query::PointQueryWithLocation;
+        let (proj, location) = self
+            .mesh
+            .triangle(t)
+            .project_local_point_and_get_location(p, false);
+        ((proj.point - p).length(), proj, location)
+    }
+
     fn project(&self, p: Vec3, hint: u32) -> SurfaceProjection {
         let shape = CompositeShapeRef(&self.mesh);
         let mut bound = f32::MAX;
         if hint != NONE && (hint as usize) < self.mesh.indices().len() {
-            use parry3d::query::PointQueryWithLocation;
-            let (proj, _) = self
-                .mesh
-                .triangle(hint)
-                .project_local_point_and_get_location(p, false);
-            let d = (proj.point - p).length();
+            let (d, _, _) = self.triangle_projection(hint, p);
             // Strictly above the hint's own distance: the hint (or a closer triangle) is found.
             bound = d * (1.0 + 1e-5) + f32::MIN_POSITIVE;
         }
@@ -460,6 +501,17 @@ impl MeshShape {
                 coords: Vec3::new(1.0, 0.0, 0.0),
             };
         };
+        self.finish(p, t, proj.point, location)
+    }
+
+    /// The oriented projection of `p` once its closest triangle `t` is known.
+    fn finish(
+        &self,
+        p: Vec3,
+        t: u32,
+        point: Vec3,
+        location: TrianglePointLocation,
+    ) -> SurfaceProjection {
         let idx = self.mesh.indices()[t as usize];
         let feature_normal = match location {
             TrianglePointLocation::OnEdge(i, _) => {
@@ -472,7 +524,103 @@ impl MeshShape {
         let coords = location
             .barycentric_coordinates()
             .map_or(Vec3::splat(1.0 / 3.0), Vec3::from_array);
-        oriented(p, proj.point, feature_normal, t, coords)
+        oriented(p, point, feature_normal, t, coords)
+    }
+
+    /// An exact projection that also fills `patch` with the [`PATCH`] triangles nearest to `p`
+    /// and a lower bound of the distance from `p` to every other triangle (see
+    /// [`Patch`]). Triangles farther than the nearest one plus `margin_m` are not collected.
+    fn project_and_certify(
+        &self,
+        p: Vec3,
+        hint: u32,
+        margin_m: f32,
+        patch: &mut Patch,
+    ) -> SurfaceProjection {
+        let triangles = self.mesh.indices().len();
+        let hint = if hint != NONE && (hint as usize) < triangles {
+            hint
+        } else {
+            // No usable hint: one plain search finds the nearest triangle first.
+            let found = CompositeShapeRef(&self.mesh).project_local_point(p, f32::MAX, false);
+            match found {
+                Some((t, _)) => t,
+                None => {
+                    patch.clear();
+                    return self.project(p, NONE);
+                }
+            }
+        };
+        let (d_hint, _, _) = self.triangle_projection(hint, p);
+        // Every triangle farther than `bound` is left out; the bound falls to the distance of
+        // the (PATCH + 1)-th nearest triangle once that many were seen.
+        let mut bound = d_hint + margin_m.max(0.0);
+        if !bound.is_finite() {
+            patch.clear();
+            return self.project(p, hint);
+        }
+        let mut near = [(f32::INFINITY, NONE); PATCH + 1];
+        let mut len = 0usize;
+        self.mesh.bvh().traverse(|node| {
+            if node.aabb().distance_to_local_point(p, true) >= bound {
+                return TraversalAction::Prune;
+            }
+            if let Some(t) = node.leaf_data() {
+                let (d, _, _) = self.triangle_projection(t, p);
+                if d < bound {
+                    // Insertion into the sorted list, keeping the first of equal distances.
+                    let mut i = len.min(PATCH);
+                    while i > 0 && near[i - 1].0 > d {
+                        near[i] = near[i - 1];
+                        i -= 1;
+                    }
+                    near[i] = (d, t);
+                    len = (len + 1).min(PATCH + 1);
+                    if len == PATCH + 1 {
+                        bound = near[PATCH].0;
+                    }
+                }
+            }
+            TraversalAction::Continue
+        });
+        if len == 0 {
+            // Rounding left even the hint out: no certificate.
+            patch.clear();
+            return self.project(p, hint);
+        }
+        let kept = len.min(PATCH);
+        for (k, &(d, t)) in near[..kept].iter().enumerate() {
+            patch.tris[k] = t;
+            patch.dist[k] = d;
+        }
+        patch.len = kept as u8;
+        patch.gap = bound;
+        let t = near[0].1;
+        let (_, proj, location) = self.triangle_projection(t, p);
+        self.finish(p, t, proj.point, location)
+    }
+
+    /// The exact projection from the patch alone, when its certificate still holds for a
+    /// point and surface that moved at most `slack_m` in total since it was built; `None`
+    /// otherwise.
+    fn project_on_patch(&self, p: Vec3, patch: &Patch, slack_m: f32) -> Option<SurfaceProjection> {
+        let mut best = (f32::INFINITY, NONE);
+        let mut best_proj = None;
+        for k in 0..patch.len as usize {
+            // Sorted by their distance when built: no later triangle can come closer.
+            if patch.dist[k] - slack_m > best.0 {
+                break;
+            }
+            let t = patch.tris[k];
+            let (d, proj, location) = self.triangle_projection(t, p);
+            if d < best.0 {
+                best = (d, t);
+                best_proj = Some((proj.point, location));
+            }
+        }
+        let (point, location) = best_proj?;
+        // Every triangle outside the patch is at least `gap − slack` away now.
+        (best.0 < patch.gap - slack_m).then(|| self.finish(p, best.1, point, location))
     }
 }
 
