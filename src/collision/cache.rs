@@ -34,6 +34,8 @@ pub(crate) struct Patch {
     pub(crate) gap: f32,
     /// Triangles in use.
     pub(crate) len: u8,
+    /// Index in `tris` of the last answer.
+    pub(crate) best: u8,
     /// Reference point, collider rest frame.
     at: Vec3,
     /// The collider's travel when the patch was built, m.
@@ -46,6 +48,7 @@ impl Patch {
         dist: [0.0; PATCH],
         gap: 0.0,
         len: 0,
+        best: 0,
         at: Vec3::ZERO,
         travel_at: 0.0,
     };
@@ -148,3 +151,6 @@ impl Slot {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;

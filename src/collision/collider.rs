@@ -3,7 +3,6 @@
 use glam::Vec3;
 use parry3d::bounding_volume::Aabb;
 use parry3d::math::Pose;
-use parry3d::partitioning::TraversalAction;
 use parry3d::query::PointQuery;
 use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{
@@ -527,9 +526,18 @@ impl MeshShape {
         oriented(p, point, feature_normal, t, coords)
     }
 
+    /// Distance from `p` to triangle `t` (lean closest-point arithmetic, without parry's
+    /// robustness checks; equal to parry's distance up to rounding).
+    #[inline]
+    fn triangle_distance(&self, t: u32, p: Vec3) -> f32 {
+        let v = self.mesh.vertices();
+        let [a, b, c] = self.mesh.indices()[t as usize].map(|i| v[i as usize]);
+        triangle_distance_sq(p, a, b, c).sqrt()
+    }
+
     /// An exact projection that also fills `patch` with the [`PATCH`] triangles nearest to `p`
-    /// and a lower bound of the distance from `p` to every other triangle (see
-    /// [`Patch`]). Triangles farther than the nearest one plus `margin_m` are not collected.
+    /// and a lower bound of the distance from `p` to every other triangle (see [`Patch`]).
+    /// Triangles farther than the hint's distance plus `margin_m` are not collected.
     fn project_and_certify(
         &self,
         p: Vec3,
@@ -537,65 +545,61 @@ impl MeshShape {
         margin_m: f32,
         patch: &mut Patch,
     ) -> SurfaceProjection {
+        patch.clear();
         let triangles = self.mesh.indices().len();
         let hint = if hint != NONE && (hint as usize) < triangles {
             hint
         } else {
             // No usable hint: one plain search finds the nearest triangle first.
-            let found = CompositeShapeRef(&self.mesh).project_local_point(p, f32::MAX, false);
-            match found {
+            match CompositeShapeRef(&self.mesh).project_local_point(p, f32::MAX, false) {
                 Some((t, _)) => t,
-                None => {
-                    patch.clear();
-                    return self.project(p, NONE);
-                }
+                None => return self.project(p, NONE),
             }
         };
-        let (d_hint, _, _) = self.triangle_projection(hint, p);
-        // Every triangle farther than `bound` is left out; the bound falls to the distance of
-        // the (PATCH + 1)-th nearest triangle once that many were seen.
-        let mut bound = d_hint + margin_m.max(0.0);
+        // Best-first search for the PATCH + 1 nearest triangles: each leaf reports the
+        // distance of the (PATCH + 1)-th nearest seen so far, which prunes every box farther.
+        let bound = self.triangle_distance(hint, p) + margin_m.max(0.0);
         if !bound.is_finite() {
-            patch.clear();
             return self.project(p, hint);
         }
-        let mut near = [(f32::INFINITY, NONE); PATCH + 1];
-        let mut len = 0usize;
-        self.mesh.bvh().traverse(|node| {
-            if node.aabb().distance_to_local_point(p, true) >= bound {
-                return TraversalAction::Prune;
-            }
-            if let Some(t) = node.leaf_data() {
-                let (d, _, _) = self.triangle_projection(t, p);
+        let near = std::cell::RefCell::new(([(f32::INFINITY, NONE); PATCH + 1], 0usize));
+        let _ = self.mesh.bvh().find_best(
+            bound,
+            |node, _| node.aabb().distance_to_local_point(p, true),
+            |t, _| {
+                let d = self.triangle_distance(t, p);
+                let mut guard = near.borrow_mut();
+                let (list, len) = &mut *guard;
                 if d < bound {
-                    // Insertion into the sorted list, keeping the first of equal distances.
-                    let mut i = len.min(PATCH);
-                    while i > 0 && near[i - 1].0 > d {
-                        near[i] = near[i - 1];
-                        i -= 1;
-                    }
-                    near[i] = (d, t);
-                    len = (len + 1).min(PATCH + 1);
-                    if len == PATCH + 1 {
-                        bound = near[PATCH].0;
+                    // Sorted insertion, keeping the first of equal distances first.
+                    let mut i = (*len).min(PATCH);
+                    if i < PATCH || d < list[PATCH].0 {
+                        while i > 0 && list[i - 1].0 > d {
+                            list[i] = list[i - 1];
+                            i -= 1;
+                        }
+                        list[i] = (d, t);
+                        *len = (*len + 1).min(PATCH + 1);
                     }
                 }
-            }
-            TraversalAction::Continue
-        });
+                Some(if *len == PATCH + 1 { list[PATCH].0 } else { bound })
+            },
+        );
+        let (list, len) = near.into_inner();
         if len == 0 {
-            // Rounding left even the hint out: no certificate.
-            patch.clear();
             return self.project(p, hint);
         }
         let kept = len.min(PATCH);
-        for (k, &(d, t)) in near[..kept].iter().enumerate() {
+        for (k, &(d, t)) in list[..kept].iter().enumerate() {
             patch.tris[k] = t;
             patch.dist[k] = d;
         }
         patch.len = kept as u8;
-        patch.gap = bound;
-        let t = near[0].1;
+        patch.best = 0;
+        // Every triangle not kept is at least as far as the last one listed, or was pruned
+        // (farther than the bound in force, which only fell).
+        patch.gap = if len == PATCH + 1 { list[PATCH].0 } else { bound };
+        let t = list[0].1;
         let (_, proj, location) = self.triangle_projection(t, p);
         self.finish(p, t, proj.point, location)
     }
@@ -603,25 +607,83 @@ impl MeshShape {
     /// The exact projection from the patch alone, when its certificate still holds for a
     /// point and surface that moved at most `slack_m` in total since it was built; `None`
     /// otherwise.
-    fn project_on_patch(&self, p: Vec3, patch: &Patch, slack_m: f32) -> Option<SurfaceProjection> {
-        let mut best = (f32::INFINITY, NONE);
-        let mut best_proj = None;
-        for k in 0..patch.len as usize {
-            // Sorted by their distance when built: no later triangle can come closer.
-            if patch.dist[k] - slack_m > best.0 {
-                break;
-            }
-            let t = patch.tris[k];
-            let (d, proj, location) = self.triangle_projection(t, p);
-            if d < best.0 {
-                best = (d, t);
-                best_proj = Some((proj.point, location));
+    fn project_on_patch(
+        &self,
+        p: Vec3,
+        patch: &mut Patch,
+        slack_m: f32,
+    ) -> Option<SurfaceProjection> {
+        let len = patch.len as usize;
+        // The last answer first: often it alone is provably the closest.
+        let b = patch.best as usize;
+        let mut best = (self.triangle_distance(patch.tris[b], p), b);
+        let others = if b == 0 {
+            patch.dist.get(1).copied().filter(|_| len > 1)
+        } else {
+            Some(patch.dist[0])
+        }
+        .unwrap_or(f32::INFINITY);
+        if best.0 >= others - slack_m {
+            for k in 0..len {
+                // Sorted by their distance when built: no later triangle can come closer.
+                if patch.dist[k] - slack_m > best.0 {
+                    break;
+                }
+                if k == b {
+                    continue;
+                }
+                let d = self.triangle_distance(patch.tris[k], p);
+                if d < best.0 {
+                    best = (d, k);
+                }
             }
         }
-        let (point, location) = best_proj?;
         // Every triangle outside the patch is at least `gap − slack` away now.
-        (best.0 < patch.gap - slack_m).then(|| self.finish(p, best.1, point, location))
+        if !(best.0 < patch.gap - slack_m) {
+            return None;
+        }
+        patch.best = best.1 as u8;
+        let t = patch.tris[best.1];
+        let (_, proj, location) = self.triangle_projection(t, p);
+        Some(self.finish(p, t, proj.point, location))
     }
+}
+
+/// Squared distance from `p` to triangle `abc` (Ericson, Real-Time Collision Detection, 5.1.5).
+#[inline]
+fn triangle_distance_sq(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> f32 {
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return ap.length_squared();
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return bp.length_squared();
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return (ap - ab * v).length_squared();
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return cp.length_squared();
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return (ap - ac * w).length_squared();
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (bp - (c - b) * w).length_squared();
+    }
+    let denom = 1.0 / (va + vb + vc);
+    (ap - ab * (vb * denom) - ac * (vc * denom)).length_squared()
 }
 
 /// Signed distance and push direction from the feature normal.

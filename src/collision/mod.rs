@@ -1,6 +1,7 @@
 //! Sliding contact of the skin on deforming muscles and rigid bones: thickness, friction, no tunnelling.
 #![doc = include_str!("README.md")]
 
+pub mod bench_support;
 mod cache;
 mod collider;
 pub mod shapes;
