@@ -250,7 +250,13 @@ fn summary(rest: &[Vec3], tris: &[[u32; 3]], frames: &[Vec<Vec3>]) {
         "cert/v",
         "skip/v"
     );
-    for n in [10_000usize, 100_000] {
+    // `COLLISION_SUMMARY_ONLY_10K=1`: the 10k skin only (quick tuning runs).
+    let sizes: &[usize] = if std::env::var_os("COLLISION_SUMMARY_ONLY_10K").is_some() {
+        &[10_000]
+    } else {
+        &[10_000, 100_000]
+    };
+    for &n in sizes {
         let base = skin(n);
         for motion in [Motion::Decaying, Motion::Steady, Motion::OldJiggle] {
             let (mut contact, muscle) = setup(n, rest, tris);

@@ -16,7 +16,7 @@ use glam::Vec3;
 use super::collider::{ColliderMesh, NONE, SurfaceProjection};
 
 /// Triangles kept per patch.
-pub(crate) const PATCH: usize = 6;
+pub(crate) const PATCH: usize = 12;
 
 /// Rounding allowance of a triangle distance relative to the coordinates' magnitude (parry
 /// computes in f32; this is generous by two orders of magnitude).
