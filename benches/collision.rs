@@ -116,9 +116,8 @@ fn setup(n: usize, rest: &[Vec3], tris: &[[u32; 3]]) -> (SkinCollision, Collider
         ..ContactConfig::DEFAULT
     };
     let mut contact = SkinCollision::new(n, config).expect("valid config");
-    let muscle = contact.add_collider(
-        ColliderMesh::from_mesh(rest.to_vec(), tris.to_vec()).expect("closed mesh"),
-    );
+    let muscle = contact
+        .add_collider(ColliderMesh::from_mesh(rest.to_vec(), tris.to_vec()).expect("closed mesh"));
     (contact, muscle)
 }
 
@@ -262,8 +261,8 @@ fn summary(rest: &[Vec3], tris: &[[u32; 3]], frames: &[Vec<Vec3>]) {
             let (mut contact, muscle) = setup(n, rest, tris);
             let mut x = base.clone();
             // Warm-up frames fill the cache as a running animation would.
-            for phase in 0..2 {
-                frame(&mut contact, muscle, &frames[phase], &base, &mut x, motion);
+            for vertices in &frames[..2] {
+                frame(&mut contact, muscle, vertices, &base, &mut x, motion);
             }
             let mut costs = Vec::new();
             for k in 0..SUMMARY_FRAMES {

@@ -15,11 +15,12 @@ use glam::Vec3;
 
 use super::collider::{ColliderMesh, NONE, SurfaceProjection};
 
-/// Triangles kept per patch.
+/// Triangles kept per patch: more widen the gap `G − d` (fewer BVH searches per frame) but cost
+/// 8 bytes each per vertex and collider; 12 halved the searches of 6 in the collision bench.
 pub(crate) const PATCH: usize = 12;
 
-/// Rounding allowance of a triangle distance relative to the coordinates' magnitude (parry
-/// computes in f32; this is generous by two orders of magnitude).
+/// Rounding allowance of a triangle distance relative to the coordinates' magnitude: f32
+/// distances carry errors of a few ulps (~1e-7 relative); the allowance is a hundred times that.
 const ROUNDING: f32 = 1e-5;
 
 /// The triangles nearest a reference point and a bound on all the others (see the module

@@ -582,7 +582,11 @@ impl MeshShape {
                         *len = (*len + 1).min(PATCH + 1);
                     }
                 }
-                Some(if *len == PATCH + 1 { list[PATCH].0 } else { bound })
+                Some(if *len == PATCH + 1 {
+                    list[PATCH].0
+                } else {
+                    bound
+                })
             },
         );
         let (list, len) = near.into_inner();
@@ -598,7 +602,11 @@ impl MeshShape {
         patch.best = 0;
         // Every triangle not kept is at least as far as the last one listed, or was pruned
         // (farther than the bound in force, which only fell).
-        patch.gap = if len == PATCH + 1 { list[PATCH].0 } else { bound };
+        patch.gap = if len == PATCH + 1 {
+            list[PATCH].0
+        } else {
+            bound
+        };
         let t = list[0].1;
         let (_, proj, location) = self.triangle_projection(t, p);
         self.finish(p, t, proj.point, location)
@@ -638,8 +646,9 @@ impl MeshShape {
                 }
             }
         }
-        // Every triangle outside the patch is at least `gap − slack` away now.
-        if !(best.0 < patch.gap - slack_m) {
+        // Every triangle outside the patch is at least `gap − slack` away now (a NaN fails).
+        let certified = best.0 < patch.gap - slack_m;
+        if !certified {
             return None;
         }
         patch.best = best.1 as u8;

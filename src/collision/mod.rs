@@ -737,7 +737,7 @@ impl Ctx<'_> {
                     counters.skipped_aabb += 1;
                     continue;
                 }
-                let (proj, answer) = slot.project(col, local, travel, band.max(1e-4));
+                let (proj, answer) = slot.project(col, local, travel, (0.25 * band).max(1e-5));
                 match answer {
                     Answer::Certified => counters.certified += 1,
                     Answer::Searched { hit } => {

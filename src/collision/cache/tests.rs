@@ -64,7 +64,8 @@ fn assert_same(col: &ColliderMesh, local: Vec3, got: &SurfaceProjection, what: &
         .distance(got.point);
     assert!(
         got.point.distance(naive.point) < 1e-6
-            || (on_surface < 1e-6 && (got.point.distance(local) - dist).abs() <= 1e-6 * (1.0 + dist)),
+            || (on_surface < 1e-6
+                && (got.point.distance(local) - dist).abs() <= 1e-6 * (1.0 + dist)),
         "{what}: point {} vs parry {} at {local}",
         got.point,
         naive.point
@@ -99,7 +100,12 @@ fn certified_answers_equal_parry_over_deforming_frames_and_passes() {
                     Answer::Certified => certified += 1,
                     Answer::Searched { .. } => searched += 1,
                 }
-                assert_same(&col, *p, &got, &format!("frame {frame} pass {pass} point {i}"));
+                assert_same(
+                    &col,
+                    *p,
+                    &got,
+                    &format!("frame {frame} pass {pass} point {i}"),
+                );
             }
         }
     }
