@@ -3,7 +3,9 @@
 //! muscle deforms once, then `PASSES` relaxation-like contact passes) for the amortised cost per
 //! skin vertex per frame.
 //!
-//! Run with `nice cargo bench --bench collision` (figures in benches/README.md). Criterion
+//! Run with `nice cargo bench --bench collision` (figures in benches/README.md: with the patch
+//! certificates a 30-pass frame is 4-5x faster than 30 naive passes under `decaying` motion,
+//! 3.5x under `steady`, 1.5x under `old_jiggle`). Criterion
 //! times the kernels (`collider_refit`, `collision_pass/*` one pass after the muscle moved,
 //! `collision_frame/*` one whole frame); a summary printed at the end times frames and naive
 //! passes side by side in the same run (median of `SUMMARY_FRAMES` frames) with the cache's
