@@ -91,7 +91,8 @@ pub(crate) struct Slot {
 pub(crate) enum Answer {
     /// The patch certificate held: no BVH search.
     Certified,
-    /// A BVH search (the patch was rebuilt); `hit`: it ended on the cached triangle.
+    /// A BVH search (the patch was rebuilt or cleared); `hit`: it ended on the cached
+    /// triangle.
     Searched {
         /// The closest triangle was the cached one.
         hit: bool,
@@ -135,8 +136,13 @@ impl Slot {
     ) -> (SurfaceProjection, Answer) {
         let slack = self.patch.slack(local, travel);
         let hint = self.part;
+        // A search builds a patch only when the collider stayed still since this slot's last
+        // search (the passes of a relaxation share one collider state); the first search after
+        // the collider moved is a plain one, since a single pass per state (substeps) would
+        // never use the patch.
+        let margin = (self.patch.travel_at == travel).then_some(margin_m);
         let (proj, certified) =
-            collider.project_patched(local, hint, &mut self.patch, slack, margin_m);
+            collider.project_patched(local, hint, &mut self.patch, slack, margin);
         self.part = proj.part;
         if certified {
             (proj, Answer::Certified)

@@ -377,8 +377,9 @@ impl ColliderMesh {
 
     /// Projects a rest-frame point with the help of a vertex's `patch` (see [`Patch`]): from
     /// the patch alone while its certificate holds (`slack_m`: a bound on how far the point
-    /// and the surface moved in total since it was built), else by an exact search that
-    /// rebuilds it around `hint`. Returns the projection and whether the patch answered; the
+    /// and the surface moved in total since it was built), else by an exact search around
+    /// `hint` that rebuilds the patch with triangles up to `margin_m` farther than the nearest
+    /// (`None`: a plain search, and no patch). Returns the projection and whether the patch answered; the
     /// projection is the exact one either way. Primitives need no patch.
     pub(crate) fn project_patched(
         &self,
@@ -386,7 +387,7 @@ impl ColliderMesh {
         hint: u32,
         patch: &mut Patch,
         slack_m: Option<f32>,
-        margin_m: f32,
+        margin_m: Option<f32>,
     ) -> (SurfaceProjection, bool) {
         match &self.shape {
             Shape::Mesh(m) => {
@@ -396,7 +397,13 @@ impl ColliderMesh {
                 {
                     return (r, true);
                 }
-                (m.project_and_certify(p, hint, margin_m, patch), false)
+                match margin_m {
+                    Some(margin) => (m.project_and_certify(p, hint, margin, patch), false),
+                    None => {
+                        patch.clear();
+                        (m.project(p, hint), false)
+                    }
+                }
             }
             _ => (self.project_local(p, hint), false),
         }
@@ -535,6 +542,36 @@ impl MeshShape {
         triangle_distance_sq(p, a, b, c).sqrt()
     }
 
+    /// Among `candidates` (lean distance, triangle), those within rounding of the smallest lean
+    /// distance are ranked by parry's own distance, as parry's search ranks them: the answer
+    /// is the triangle parry would pick, not one that lean rounding happened to favour.
+    fn parry_choice(
+        &self,
+        p: Vec3,
+        candidates: impl Iterator<Item = (f32, u32)> + Clone,
+    ) -> Option<(u32, parry3d::query::PointProjection, TrianglePointLocation)> {
+        let lean_min = candidates
+            .clone()
+            .map(|c| c.0)
+            .fold(f32::INFINITY, f32::min);
+        let eps = TIE_ROUNDING * (p.abs().max_element() + lean_min);
+        let mut best: Option<(
+            f32,
+            u32,
+            parry3d::query::PointProjection,
+            TrianglePointLocation,
+        )> = None;
+        for (d, t) in candidates {
+            if d <= lean_min + eps {
+                let (dp, proj, location) = self.triangle_projection(t, p);
+                if best.as_ref().is_none_or(|b| dp < b.0) {
+                    best = Some((dp, t, proj, location));
+                }
+            }
+        }
+        best.map(|(_, t, proj, location)| (t, proj, location))
+    }
+
     /// An exact projection that also fills `patch` with the [`PATCH`] triangles nearest to `p`
     /// and a lower bound of the distance from `p` to every other triangle (see [`Patch`]).
     /// Triangles farther than the hint's distance plus `margin_m` are not collected.
@@ -607,8 +644,10 @@ impl MeshShape {
         } else {
             bound
         };
-        let t = list[0].1;
-        let (_, proj, location) = self.triangle_projection(t, p);
+        let Some((t, proj, location)) = self.parry_choice(p, list[..kept].iter().copied()) else {
+            return self.project(p, hint);
+        };
+        patch.best = list[..kept].iter().position(|c| c.1 == t).unwrap_or(0) as u8;
         self.finish(p, t, proj.point, location)
     }
 
@@ -651,12 +690,26 @@ impl MeshShape {
         if !certified {
             return None;
         }
-        patch.best = best.1 as u8;
-        let t = patch.tris[best.1];
-        let (_, proj, location) = self.triangle_projection(t, p);
+        // Lean distances of the patch at `p` (evaluated ones; others are farther than `best`).
+        let mut lean = [f32::INFINITY; PATCH];
+        lean[best.1] = best.0;
+        for k in 0..len {
+            if k != best.1
+                && patch.dist[k] - slack_m
+                    <= best.0 + TIE_ROUNDING * (p.abs().max_element() + best.0)
+            {
+                lean[k] = self.triangle_distance(patch.tris[k], p);
+            }
+        }
+        let (t, proj, location) =
+            self.parry_choice(p, (0..len).map(|k| (lean[k], patch.tris[k])))?;
+        patch.best = (0..len).position(|k| patch.tris[k] == t).unwrap_or(0) as u8;
         Some(self.finish(p, t, proj.point, location))
     }
 }
+
+/// Lean and parry distances agree to well within this, relative to the coordinates' magnitude.
+const TIE_ROUNDING: f32 = 1e-5;
 
 /// Squared distance from `p` to triangle `abc` (Ericson, Real-Time Collision Detection, 5.1.5).
 #[inline]
