@@ -692,13 +692,12 @@ impl MeshShape {
         }
         // Lean distances of the patch at `p` (evaluated ones; others are farther than `best`).
         let mut lean = [f32::INFINITY; PATCH];
-        lean[best.1] = best.0;
-        for k in 0..len {
-            if k != best.1
-                && patch.dist[k] - slack_m
-                    <= best.0 + TIE_ROUNDING * (p.abs().max_element() + best.0)
-            {
-                lean[k] = self.triangle_distance(patch.tris[k], p);
+        let reach = best.0 + TIE_ROUNDING * (p.abs().max_element() + best.0);
+        for (k, l) in lean.iter_mut().enumerate().take(len) {
+            if k == best.1 {
+                *l = best.0;
+            } else if patch.dist[k] - slack_m <= reach {
+                *l = self.triangle_distance(patch.tris[k], p);
             }
         }
         let (t, proj, location) =
