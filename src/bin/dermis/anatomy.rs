@@ -89,12 +89,7 @@ fn jaw(args: JawArgs) -> CliResult {
                 }),
             summary.unresolved_contacts
         );
-        for f in summary.files.iter().take(3) {
-            println!("  {}", f.display());
-        }
-        if summary.files.len() > 3 {
-            println!("  ... {} files in all", summary.files.len());
-        }
+        crate::print_written(&summary.files);
     }
     Ok(())
 }

@@ -114,12 +114,7 @@ pub fn run(args: Args) -> CliResult {
             summary.residual_max,
             summary.unresolved_contacts
         );
-        for f in summary.files.iter().take(3) {
-            println!("  {}", f.display());
-        }
-        if summary.files.len() > 3 {
-            println!("  ... {} files in all", summary.files.len());
-        }
+        crate::print_written(&summary.files);
     }
     Ok(())
 }

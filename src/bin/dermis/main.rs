@@ -46,6 +46,16 @@ enum Command {
 /// A command's failure: printed as `error: ...`, exit code 1.
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
+/// Lists the first few files a command wrote, and how many there are in all.
+fn print_written(files: &[std::path::PathBuf]) {
+    for f in files.iter().take(3) {
+        println!("  {}", f.display());
+    }
+    if files.len() > 3 {
+        println!("  ... {} files in all", files.len());
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result: CliResult = match cli.command {
