@@ -1,5 +1,6 @@
-//! Eight-lane force and curvature kernels over the sliced springs: AVX2 when the CPU has it
-//! (checked at run time), otherwise a portable path with bit-identical results.
+//! Eight-lane force and curvature kernels over the sliced springs: AVX2 (with AVX-512 for the
+//! f64 half) when the CPU has it (checked at run time), otherwise a portable path with
+//! bit-identical results.
 //!
 //! Both paths run the same generic code over a [`Lanes`] implementation, lane by lane the same
 //! IEEE operations in the same order (no fused multiply-add, no approximate reciprocals), so the
@@ -229,6 +230,9 @@ impl Lanes for Scalar {
         a
     }
 }
+
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
@@ -483,23 +487,45 @@ mod avx2 {
 }
 
 /// Which lanes the kernels run on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub(crate) enum Isa {
     /// Portable arrays.
     Scalar,
     /// AVX2 (x86-64 only, detected at run time).
     Avx2,
+    /// AVX2 for the f32 half, AVX-512F for the f64 half (x86-64 only, detected at run time).
+    Avx512,
 }
 
 impl Isa {
-    /// The fastest available for `n` vertices (gather offsets must fit in i32).
+    /// The fastest available for `n` vertices (gather offsets must fit in i32), capped by the
+    /// environment variable `DERMIS_SIMD` (`scalar`, `avx2` or `avx512`; for measurements:
+    /// every path gives the same bits).
     pub fn detect(n: usize) -> Self {
+        let cap = std::env::var("DERMIS_SIMD").ok();
+        let cap = match cap.as_deref() {
+            Some("scalar") => Self::Scalar,
+            Some("avx2") => Self::Avx2,
+            _ => Self::Avx512,
+        };
+        Self::available(n)
+            .into_iter()
+            .rfind(|&isa| isa <= cap)
+            .unwrap_or(Self::Scalar)
+    }
+
+    /// Every path this CPU can run for `n` vertices, slowest first.
+    pub fn available(n: usize) -> Vec<Self> {
+        let mut all = vec![Self::Scalar];
         #[cfg(target_arch = "x86_64")]
         if n < (1 << 27) && std::arch::is_x86_feature_detected!("avx2") {
-            return Self::Avx2;
+            all.push(Self::Avx2);
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                all.push(Self::Avx512);
+            }
         }
         let _ = n;
-        Self::Scalar
+        all
     }
 }
 
@@ -769,6 +795,17 @@ fn force_chunk_avx2(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3], w: Option
     force_chunk(avx2::Avx2, f, first, r, w)
 }
 
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f")]
+fn force_chunk_avx512(
+    f: &ForceInputs<'_>,
+    first: usize,
+    r: &mut [Vec3],
+    w: Option<&[f32]>,
+) -> Sums {
+    force_chunk(avx512::Avx512, f, first, r, w)
+}
+
 impl ForceInputs<'_> {
     /// Forces of vertices `first..first + r.len()` into `r`, with the chunk's partial sums.
     pub fn chunk(&self, isa: Isa, first: usize, r: &mut [Vec3], w: Option<&[f32]>) -> Sums {
@@ -776,6 +813,9 @@ impl ForceInputs<'_> {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Isa::Avx2` is only returned after the CPU check.
             Isa::Avx2 => unsafe { force_chunk_avx2(self, first, r, w) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2 and AVX-512F).
+            Isa::Avx512 => unsafe { force_chunk_avx512(self, first, r, w) },
             _ => force_chunk(Scalar, self, first, r, w),
         }
     }
@@ -892,6 +932,18 @@ fn curvature_chunk_avx2(
     curvature_chunk(avx2::Avx2, sell, x, d, anchors, slices)
 }
 
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f")]
+fn curvature_chunk_avx512(
+    sell: &Sell,
+    x: &[Vec3],
+    d: &[Vec3],
+    anchors: Option<&[VertexAnchor]>,
+    slices: std::ops::Range<usize>,
+) -> f64 {
+    curvature_chunk(avx512::Avx512, sell, x, d, anchors, slices)
+}
+
 /// `Σ dᵀ H d` contributions of the vertices in `slices` (see [`Frame::curvature`]).
 ///
 /// [`Frame::curvature`]: super::kernels::Frame::curvature
@@ -907,6 +959,9 @@ pub(crate) fn curvature(
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `Isa::Avx2` is only returned after the CPU check.
         Isa::Avx2 => unsafe { curvature_chunk_avx2(sell, x, d, anchors, slices) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2 and AVX-512F).
+        Isa::Avx512 => unsafe { curvature_chunk_avx512(sell, x, d, anchors, slices) },
         _ => curvature_chunk(Scalar, sell, x, d, anchors, slices),
     }
 }
@@ -1031,11 +1086,7 @@ mod tests {
     }
 
     fn isas() -> Vec<Isa> {
-        let mut v = vec![Isa::Scalar];
-        if Isa::detect(1000) != Isa::Scalar {
-            v.push(Isa::detect(1000));
-        }
-        v
+        Isa::available(1000)
     }
 
     #[test]
