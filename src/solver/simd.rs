@@ -833,7 +833,10 @@ fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: 
     let b = l.splat(beta);
     let mut slope = 0.0f64;
     for o in (0..full).step_by(LANES) {
-        let (rp, dp) = (r[o..].as_ptr().cast::<f32>(), d[o..].as_mut_ptr().cast::<f32>());
+        let (rp, dp) = (
+            r[o..].as_ptr().cast::<f32>(),
+            d[o..].as_mut_ptr().cast::<f32>(),
+        );
         // SAFETY: eight vectors from `o < full` are in bounds of `r` and `d`.
         let ([rx, ry, rz], [dx, dy, dz]) = unsafe { (l.load3(rp), l.load3(dp)) };
         let wv = l.load(&w[o..o + LANES]);
@@ -1193,7 +1196,10 @@ mod tests {
             let got = direction(isa, &mut d, &r, &w, beta);
             assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
             for (a, b) in d.iter().zip(&want_d) {
-                assert_eq!(a.to_array().map(f32::to_bits), b.to_array().map(f32::to_bits));
+                assert_eq!(
+                    a.to_array().map(f32::to_bits),
+                    b.to_array().map(f32::to_bits)
+                );
             }
         }
     }
