@@ -3,12 +3,14 @@
 use glam::Vec3;
 use parry3d::bounding_volume::Aabb;
 use parry3d::math::Pose;
+use parry3d::query::PointQuery;
 use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{
     Ball, Capsule, CompositeShapeRef, TriMesh as ParryMesh, TrianglePointLocation,
 };
 
 use super::CollisionError;
+use super::cache::{PATCH, Patch};
 use crate::mesh::TriMesh;
 
 /// Marks "no triangle" in neighbour tables and caches.
@@ -300,6 +302,20 @@ impl ColliderMesh {
         &self.local_aabb
     }
 
+    /// The pose at the end of the previous frame.
+    pub(crate) fn prev_pose(&self) -> Pose {
+        self.prev_pose
+    }
+
+    /// Largest rest-frame vertex displacement of a deforming mesh since the previous frame, m
+    /// (0 for rigid colliders).
+    pub(crate) fn frame_deform_m(&self) -> f32 {
+        match &self.shape {
+            Shape::Mesh(m) => max_displacement(&m.prev, &m.current),
+            _ => 0.0,
+        }
+    }
+
     /// Bound on how far any surface point moved since the previous frame, m.
     pub(crate) fn frame_motion_m(&self) -> f32 {
         let deform = match &self.shape {
@@ -373,6 +389,40 @@ impl ColliderMesh {
         }
     }
 
+    /// Projects a rest-frame point with the help of a vertex's `patch` (see [`Patch`]): from
+    /// the patch alone while its certificate holds (`slack_m`: a bound on how far the point
+    /// and the surface moved in total since it was built), else by an exact search around
+    /// `hint` that rebuilds the patch with triangles up to `margin_m` farther than the nearest
+    /// (`None`: a plain search, and no patch). Returns the projection and whether the patch answered; the
+    /// projection is the exact one either way. Primitives need no patch.
+    pub(crate) fn project_patched(
+        &self,
+        p: Vec3,
+        hint: u32,
+        patch: &mut Patch,
+        slack_m: Option<f32>,
+        margin_m: Option<f32>,
+    ) -> (SurfaceProjection, bool) {
+        match &self.shape {
+            Shape::Mesh(m) => {
+                if let Some(slack) = slack_m
+                    && patch.len > 0
+                    && let Some(r) = m.project_on_patch(p, patch, slack)
+                {
+                    return (r, true);
+                }
+                match margin_m {
+                    Some(margin) => (m.project_and_certify(p, hint, margin, patch), false),
+                    None => {
+                        patch.clear();
+                        (m.project(p, hint), false)
+                    }
+                }
+            }
+            _ => (self.project_local(p, hint), false),
+        }
+    }
+
     /// The current rest-frame position of a surface point given by `part` and `coords` (see
     /// [`SurfaceProjection`]).
     pub(crate) fn local_surface_point(&self, part: u32, coords: Vec3) -> Vec3 {
@@ -434,16 +484,27 @@ impl MeshShape {
         sum.normalize_or_zero()
     }
 
+    /// The projection of `p` on triangle `t` exactly as parry's BVH search computes it for a
+    /// leaf, with its distance (the search's cost).
+    #[inline]
+    fn triangle_projection(
+        &self,
+        t: u32,
+        p: Vec3,
+    ) -> (f32, parry3d::query::PointProjection, TrianglePointLocation) {
+        use parry3d::query::PointQueryWithLocation;
+        let (proj, location) = self
+            .mesh
+            .triangle(t)
+            .project_local_point_and_get_location(p, false);
+        ((proj.point - p).length(), proj, location)
+    }
+
     fn project(&self, p: Vec3, hint: u32) -> SurfaceProjection {
         let shape = CompositeShapeRef(&self.mesh);
         let mut bound = f32::MAX;
         if hint != NONE && (hint as usize) < self.mesh.indices().len() {
-            use parry3d::query::PointQueryWithLocation;
-            let (proj, _) = self
-                .mesh
-                .triangle(hint)
-                .project_local_point_and_get_location(p, false);
-            let d = (proj.point - p).length();
+            let (d, _, _) = self.triangle_projection(hint, p);
             // Strictly above the hint's own distance: the hint (or a closer triangle) is found.
             bound = d * (1.0 + 1e-5) + f32::MIN_POSITIVE;
         }
@@ -460,6 +521,17 @@ impl MeshShape {
                 coords: Vec3::new(1.0, 0.0, 0.0),
             };
         };
+        self.finish(p, t, proj.point, location)
+    }
+
+    /// The oriented projection of `p` once its closest triangle `t` is known.
+    fn finish(
+        &self,
+        p: Vec3,
+        t: u32,
+        point: Vec3,
+        location: TrianglePointLocation,
+    ) -> SurfaceProjection {
         let idx = self.mesh.indices()[t as usize];
         let feature_normal = match location {
             TrianglePointLocation::OnEdge(i, _) => {
@@ -472,8 +544,221 @@ impl MeshShape {
         let coords = location
             .barycentric_coordinates()
             .map_or(Vec3::splat(1.0 / 3.0), Vec3::from_array);
-        oriented(p, proj.point, feature_normal, t, coords)
+        oriented(p, point, feature_normal, t, coords)
     }
+
+    /// Distance from `p` to triangle `t` (lean closest-point arithmetic, without parry's
+    /// robustness checks; equal to parry's distance up to rounding).
+    #[inline]
+    fn triangle_distance(&self, t: u32, p: Vec3) -> f32 {
+        let v = self.mesh.vertices();
+        let [a, b, c] = self.mesh.indices()[t as usize].map(|i| v[i as usize]);
+        triangle_distance_sq(p, a, b, c).sqrt()
+    }
+
+    /// Among `candidates` (lean distance, triangle), those within rounding of the smallest lean
+    /// distance are ranked by parry's own distance, as parry's search ranks them: the answer
+    /// is the triangle parry would pick, not one that lean rounding happened to favour.
+    fn parry_choice(
+        &self,
+        p: Vec3,
+        candidates: impl Iterator<Item = (f32, u32)> + Clone,
+    ) -> Option<(u32, parry3d::query::PointProjection, TrianglePointLocation)> {
+        let lean_min = candidates
+            .clone()
+            .map(|c| c.0)
+            .fold(f32::INFINITY, f32::min);
+        let eps = TIE_ROUNDING * (p.abs().max_element() + lean_min);
+        let mut best: Option<(
+            f32,
+            u32,
+            parry3d::query::PointProjection,
+            TrianglePointLocation,
+        )> = None;
+        for (d, t) in candidates {
+            if d <= lean_min + eps {
+                let (dp, proj, location) = self.triangle_projection(t, p);
+                if best.as_ref().is_none_or(|b| dp < b.0) {
+                    best = Some((dp, t, proj, location));
+                }
+            }
+        }
+        best.map(|(_, t, proj, location)| (t, proj, location))
+    }
+
+    /// An exact projection that also fills `patch` with the [`PATCH`] triangles nearest to `p`
+    /// and a lower bound of the distance from `p` to every other triangle (see [`Patch`]).
+    /// Triangles farther than the hint's distance plus `margin_m` are not collected.
+    fn project_and_certify(
+        &self,
+        p: Vec3,
+        hint: u32,
+        margin_m: f32,
+        patch: &mut Patch,
+    ) -> SurfaceProjection {
+        patch.clear();
+        let triangles = self.mesh.indices().len();
+        let hint = if hint != NONE && (hint as usize) < triangles {
+            hint
+        } else {
+            // No usable hint: one plain search finds the nearest triangle first.
+            match CompositeShapeRef(&self.mesh).project_local_point(p, f32::MAX, false) {
+                Some((t, _)) => t,
+                None => return self.project(p, NONE),
+            }
+        };
+        // Best-first search for the PATCH + 1 nearest triangles: each leaf reports the
+        // distance of the (PATCH + 1)-th nearest seen so far, which prunes every box farther.
+        let bound = self.triangle_distance(hint, p) + margin_m.max(0.0);
+        if !bound.is_finite() {
+            return self.project(p, hint);
+        }
+        let near = std::cell::RefCell::new(([(f32::INFINITY, NONE); PATCH + 1], 0usize));
+        let _ = self.mesh.bvh().find_best(
+            bound,
+            |node, _| node.aabb().distance_to_local_point(p, true),
+            |t, _| {
+                let d = self.triangle_distance(t, p);
+                let mut guard = near.borrow_mut();
+                let (list, len) = &mut *guard;
+                if d < bound {
+                    // Sorted insertion, keeping the first of equal distances first.
+                    let mut i = (*len).min(PATCH);
+                    if i < PATCH || d < list[PATCH].0 {
+                        while i > 0 && list[i - 1].0 > d {
+                            list[i] = list[i - 1];
+                            i -= 1;
+                        }
+                        list[i] = (d, t);
+                        *len = (*len + 1).min(PATCH + 1);
+                    }
+                }
+                Some(if *len == PATCH + 1 {
+                    list[PATCH].0
+                } else {
+                    bound
+                })
+            },
+        );
+        let (list, len) = near.into_inner();
+        if len == 0 {
+            return self.project(p, hint);
+        }
+        let kept = len.min(PATCH);
+        for (k, &(d, t)) in list[..kept].iter().enumerate() {
+            patch.tris[k] = t;
+            patch.dist[k] = d;
+        }
+        patch.len = kept as u8;
+        patch.best = 0;
+        // Every triangle not kept is at least as far as the last one listed, or was pruned
+        // (farther than the bound in force, which only fell).
+        patch.gap = if len == PATCH + 1 {
+            list[PATCH].0
+        } else {
+            bound
+        };
+        let Some((t, proj, location)) = self.parry_choice(p, list[..kept].iter().copied()) else {
+            return self.project(p, hint);
+        };
+        patch.best = list[..kept].iter().position(|c| c.1 == t).unwrap_or(0) as u8;
+        self.finish(p, t, proj.point, location)
+    }
+
+    /// The exact projection from the patch alone, when its certificate still holds for a
+    /// point and surface that moved at most `slack_m` in total since it was built; `None`
+    /// otherwise.
+    fn project_on_patch(
+        &self,
+        p: Vec3,
+        patch: &mut Patch,
+        slack_m: f32,
+    ) -> Option<SurfaceProjection> {
+        let len = patch.len as usize;
+        // The last answer first: often it alone is provably the closest.
+        let b = patch.best as usize;
+        let mut best = (self.triangle_distance(patch.tris[b], p), b);
+        let others = if b == 0 {
+            patch.dist.get(1).copied().filter(|_| len > 1)
+        } else {
+            Some(patch.dist[0])
+        }
+        .unwrap_or(f32::INFINITY);
+        if best.0 >= others - slack_m {
+            for k in 0..len {
+                // Sorted by their distance when built: no later triangle can come closer.
+                if patch.dist[k] - slack_m > best.0 {
+                    break;
+                }
+                if k == b {
+                    continue;
+                }
+                let d = self.triangle_distance(patch.tris[k], p);
+                if d < best.0 {
+                    best = (d, k);
+                }
+            }
+        }
+        // Every triangle outside the patch is at least `gap − slack` away now (a NaN fails).
+        let certified = best.0 < patch.gap - slack_m;
+        if !certified {
+            return None;
+        }
+        // Lean distances of the patch at `p` (evaluated ones; others are farther than `best`).
+        let mut lean = [f32::INFINITY; PATCH];
+        let reach = best.0 + TIE_ROUNDING * (p.abs().max_element() + best.0);
+        for (k, l) in lean.iter_mut().enumerate().take(len) {
+            if k == best.1 {
+                *l = best.0;
+            } else if patch.dist[k] - slack_m <= reach {
+                *l = self.triangle_distance(patch.tris[k], p);
+            }
+        }
+        let (t, proj, location) =
+            self.parry_choice(p, (0..len).map(|k| (lean[k], patch.tris[k])))?;
+        patch.best = (0..len).position(|k| patch.tris[k] == t).unwrap_or(0) as u8;
+        Some(self.finish(p, t, proj.point, location))
+    }
+}
+
+/// Lean and parry distances agree to well within this, relative to the coordinates' magnitude.
+const TIE_ROUNDING: f32 = 1e-5;
+
+/// Squared distance from `p` to triangle `abc` (Ericson, Real-Time Collision Detection, 5.1.5).
+#[inline]
+fn triangle_distance_sq(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> f32 {
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return ap.length_squared();
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return bp.length_squared();
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return (ap - ab * v).length_squared();
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return cp.length_squared();
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return (ap - ac * w).length_squared();
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (bp - (c - b) * w).length_squared();
+    }
+    let denom = 1.0 / (va + vb + vc);
+    (ap - ab * (vb * denom) - ac * (vc * denom)).length_squared()
 }
 
 /// Signed distance and push direction from the feature normal.

@@ -1,6 +1,8 @@
 //! Sliding contact of the skin on deforming muscles and rigid bones: thickness, friction, no tunnelling.
 #![doc = include_str!("README.md")]
 
+pub mod bench_support;
+mod cache;
 mod collider;
 pub mod shapes;
 
@@ -14,7 +16,8 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::mesh::TopologyError;
-use crate::solver::Projection;
+use crate::solver::{ActiveContact, Projection};
+use cache::{Answer, Slot};
 use collider::NONE;
 
 /// Vertices per parallel work item (fixed, so results never depend on the thread count).
@@ -214,6 +217,9 @@ pub struct ContactDiagnostics {
     pub exact_queries: u64,
     /// Exact queries whose closest triangle was the cached one.
     pub cache_hits: u64,
+    /// Closest-point queries answered exactly from the vertex's cached patch of triangles,
+    /// without a BVH search (not counted in `exact_queries`).
+    pub certified_queries: u64,
     /// Vertex–collider pairs skipped because the vertex lies outside the collider's bounding box
     /// inflated by the thickness.
     pub skipped_aabb: u64,
@@ -227,6 +233,19 @@ pub struct ContactDiagnostics {
     pub substeps_capped: bool,
     /// `true` when a pass was handed positions of the wrong length (it then did nothing).
     pub length_mismatch: bool,
+}
+
+/// Where a skin vertex last touched a collider: the surface point friction anchors it to at
+/// the start of the next frame (it moves with the collider). See
+/// [`SkinCollision::friction_anchors`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FrictionAnchor {
+    /// The collider's index ([`ColliderId`]`.0`).
+    pub collider: u32,
+    /// The triangle (0 for primitives).
+    pub part: u32,
+    /// Barycentric coordinates on the triangle, or the rest-frame point for primitives.
+    pub coords: Vec3,
 }
 
 /// A point of a collider's surface: `coords` on `part`, as in [`SurfaceProjection`].
@@ -245,6 +264,25 @@ impl Contact {
     };
 }
 
+/// A collider a vertex touches after a pass (within the contact band).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Touch {
+    /// The collider ([`NONE`]: no contact in this slot).
+    collider: u32,
+    /// Outward unit normal of the contact plane, world frame.
+    normal: Vec3,
+}
+
+impl Touch {
+    const NONE: Self = Self {
+        collider: NONE,
+        normal: Vec3::ZERO,
+    };
+}
+
+/// Contacts per vertex reported to the solver (two colliders meeting in a crease).
+const TOUCHES: usize = 2;
+
 /// Per-vertex state.
 #[derive(Debug, Clone, Copy)]
 struct VertexState {
@@ -256,6 +294,11 @@ struct VertexState {
     contact: Contact,
     /// The surface point touched at the start of the frame (friction).
     anchor: Contact,
+    /// The colliders touched after the last pass, in resolution order.
+    touches: [Touch; TOUCHES],
+    /// Colliders the solver holds this vertex against ([`Projection::hold`]): the next
+    /// projection keeps it at the thickness from them, from outside as well.
+    held: [u32; TOUCHES],
 }
 
 impl VertexState {
@@ -264,42 +307,9 @@ impl VertexState {
         safe: 0.0,
         contact: Contact::NONE,
         anchor: Contact::NONE,
+        touches: [Touch::NONE; TOUCHES],
+        held: [NONE; TOUCHES],
     };
-}
-
-/// Per vertex and collider: the closest-feature cache and a distance bound (32 bytes).
-#[derive(Debug, Clone, Copy)]
-struct Slot {
-    /// Triangle found last time ([`NONE`]: none).
-    part: u32,
-    /// Lower bound of the signed distance at `p_ref` when the collider had travelled
-    /// `travel_at`, m.
-    clearance: f32,
-    travel_at: f64,
-    p_ref: Vec3,
-}
-
-impl Slot {
-    const NEW: Self = Self {
-        part: NONE,
-        clearance: 0.0,
-        travel_at: 0.0,
-        p_ref: Vec3::ZERO,
-    };
-
-    /// Lower bound of the signed distance at `p`: the surface moved at most `travel −
-    /// travel_at`, the point at most `|p − p_ref|`.
-    #[inline]
-    fn lower_bound(&self, p: Vec3, travel: f64) -> f64 {
-        self.clearance as f64 - (travel - self.travel_at) - p.distance(self.p_ref) as f64
-    }
-
-    #[inline]
-    fn set(&mut self, clearance: f32, p: Vec3, travel: f64) {
-        self.clearance = clearance;
-        self.p_ref = p;
-        self.travel_at = travel;
-    }
 }
 
 #[derive(Debug, Clone, Copy, Default)]
@@ -308,6 +318,7 @@ struct Counters {
     moved: u64,
     exact_queries: u64,
     cache_hits: u64,
+    certified: u64,
     skipped_aabb: u64,
     skipped_bound: u64,
     swept_hits: u64,
@@ -319,6 +330,7 @@ impl Counters {
         self.moved += o.moved;
         self.exact_queries += o.exact_queries;
         self.cache_hits += o.cache_hits;
+        self.certified += o.certified;
         self.skipped_aabb += o.skipped_aabb;
         self.skipped_bound += o.skipped_bound;
         self.swept_hits += o.swept_hits;
@@ -360,6 +372,12 @@ pub struct SkinCollision {
     scratch: Vec<Vec3>,
     diagnostics: ContactDiagnostics,
     plan: Option<Plan>,
+    /// Contacts after the last projection, internal order ([`Projection::active_contacts`]).
+    active: Vec<ActiveContact>,
+    /// `(caller's vertex, collider)` of each entry of `active`.
+    active_owner: Vec<(u32, u32)>,
+    /// Caller's vertices with a held contact.
+    held_vertices: Vec<u32>,
 }
 
 /// The substeps of the frame in progress.
@@ -394,6 +412,9 @@ impl SkinCollision {
             scratch: Vec::new(),
             diagnostics: ContactDiagnostics::default(),
             plan: None,
+            active: Vec::new(),
+            active_owner: Vec::new(),
+            held_vertices: Vec::new(),
         })
     }
 
@@ -474,6 +495,73 @@ impl SkinCollision {
         self.slots = vec![Slot::NEW; n * self.colliders.len()];
     }
 
+    /// Forgets the query cache (closest triangles, distance bounds, last positions) but keeps
+    /// each vertex's last contact, the friction anchor of the next frame: what a frame that
+    /// must depend only on checkpointed state starts from (see
+    /// [`friction_anchors`](Self::friction_anchors)).
+    pub fn clear_query_cache(&mut self) {
+        for s in &mut self.states {
+            *s = VertexState {
+                contact: s.contact,
+                ..VertexState::NEW
+            };
+        }
+        self.slots = vec![Slot::NEW; self.states.len() * self.colliders.len()];
+        self.held_vertices.clear();
+        self.active.clear();
+        self.active_owner.clear();
+    }
+
+    /// Each vertex's last contact (caller's order; `None`: not touching): where friction
+    /// anchors it at the start of the next frame. Part of a checkpoint when friction is on.
+    pub fn friction_anchors(&self) -> Vec<Option<FrictionAnchor>> {
+        self.states
+            .iter()
+            .map(|s| {
+                (s.contact.collider != NONE).then_some(FrictionAnchor {
+                    collider: s.contact.collider,
+                    part: s.contact.part,
+                    coords: s.contact.coords,
+                })
+            })
+            .collect()
+    }
+
+    /// Restores [`friction_anchors`](Self::friction_anchors) (one per vertex).
+    pub fn set_friction_anchors(
+        &mut self,
+        anchors: &[Option<FrictionAnchor>],
+    ) -> Result<(), CollisionError> {
+        if anchors.len() != self.states.len() {
+            return Err(CollisionError::Length {
+                what: "friction anchors",
+                given: anchors.len(),
+                expected: self.states.len(),
+            });
+        }
+        for (v, a) in anchors.iter().enumerate() {
+            if let Some(a) = a {
+                if a.collider as usize >= self.colliders.len() {
+                    return Err(CollisionError::UnknownCollider(a.collider));
+                }
+                if !a.coords.is_finite() {
+                    return Err(CollisionError::NonFinite {
+                        what: "friction anchor of vertex",
+                        index: v,
+                    });
+                }
+            }
+        }
+        for (s, a) in self.states.iter_mut().zip(anchors) {
+            s.contact = a.map_or(Contact::NONE, |a| Contact {
+                collider: a.collider,
+                part: a.part,
+                coords: a.coords,
+            });
+        }
+        Ok(())
+    }
+
     /// Starts a frame after the colliders were moved: `x` (caller's order) holds the skin's
     /// warm start. Friction anchors are taken from the last contacts, and the motion since the
     /// last pass, of the colliders and of `x` itself, is split into substeps of at most half a
@@ -503,20 +591,10 @@ impl SkinCollision {
         for s in &mut self.states {
             s.anchor = s.contact;
         }
-        let vertex_motion = x
-            .iter()
-            .zip(&self.states)
-            .filter(|(_, s)| s.last.is_finite())
-            .map(|(p, s)| p.distance(s.last))
-            .fold(0.0f32, f32::max);
-        let collider_motion = self
-            .colliders
-            .iter()
-            .map(ColliderMesh::frame_motion_m)
-            .fold(0.0f32, f32::max);
+        let motion = self.reaching_motion(x);
         let h_min = self.thickness.iter().copied().fold(f32::INFINITY, f32::min);
         let wanted = if h_min > 0.0 {
-            ((vertex_motion + collider_motion) / (0.5 * h_min)).ceil()
+            (motion / (0.5 * h_min)).ceil()
         } else {
             1.0
         };
@@ -545,6 +623,96 @@ impl SkinCollision {
             increments,
         });
         Ok(FramePlan { substeps, capped })
+    }
+
+    /// The largest relative motion, over the frame, between a skin vertex and a collider it
+    /// can come within its contact band of, m: what the substeps must split.
+    ///
+    /// In a rigid collider's rest frame, a vertex moving from its last pass `p₀` to its warm
+    /// start `p₁` (`v = |p₁ − p₀|`) while the pose goes from the previous frame's to the
+    /// current one (translation lerped by `Δt`, rotation slerped by `θ`) follows the path
+    /// `l(t) = P(t)⁻¹ p(t)` at a speed of at most `L = |Δt| + θ (|p₁ − t₁| + v + |Δt|) + v`. A
+    /// deforming mesh's surface moves at most `δ` (its largest vertex displacement) on top.
+    /// The signed distance is 1-Lipschitz, so over `[t_a, t_b]` it stays above
+    /// `min(s(t_a), s(t_b)) − L (t_b − t_a) / 2 − δ`: the path is bisected (exact queries at
+    /// the ends of each piece, up to 64 pieces) until every piece is proven to stay out of the
+    /// band, or one cannot be. The pair then needs `min(L + δ, M + v)` split, `M` the
+    /// collider's global motion bound. Far colliders, however fast, cost no substep.
+    fn reaching_motion(&self, x: &[Vec3]) -> f32 {
+        struct Motion {
+            prev: Pose,
+            pose: Pose,
+            shift: f32,
+            angle: f32,
+            deform: f32,
+            global: f32,
+        }
+        let motions: Vec<Motion> = self
+            .colliders
+            .iter()
+            .map(|c| {
+                let (prev, pose) = (c.prev_pose(), c.pose());
+                let delta = pose.rotation * prev.rotation.inverse();
+                Motion {
+                    prev,
+                    pose,
+                    shift: prev.translation.distance(pose.translation),
+                    angle: delta.normalize().to_axis_angle().1.abs(),
+                    deform: c.frame_deform_m(),
+                    global: c.frame_motion_m(),
+                }
+            })
+            .collect();
+        let cfg = &self.config;
+        let per_chunk: Vec<f32> = x
+            .par_chunks(CHUNK)
+            .zip(self.states.par_chunks(CHUNK))
+            .zip(self.thickness.par_chunks(CHUNK))
+            .map(|((xs, states), hs)| {
+                let mut worst = 0.0f32;
+                for ((&p1, state), &h) in xs.iter().zip(states).zip(hs) {
+                    let p0 = if state.last.is_finite() {
+                        state.last
+                    } else {
+                        p1
+                    };
+                    let v = p0.distance(p1);
+                    let band = h * (1.0 + cfg.contact_band);
+                    for (col, m) in self.colliders.iter().zip(&motions) {
+                        if m.global == 0.0 && v == 0.0 {
+                            continue;
+                        }
+                        let speed =
+                            m.shift + m.angle * (p1.distance(m.pose.translation) + v + m.shift) + v;
+                        let motion = (speed + m.deform).min(m.global + v);
+                        if motion <= worst {
+                            continue;
+                        }
+                        // Rounding of the transforms and queries.
+                        let margin = band + m.deform + 1e-4 * (speed + band) + 1e-6;
+                        let distance = |t: f32| {
+                            let pose = if t >= 1.0 {
+                                m.pose
+                            } else {
+                                m.prev.lerp(&m.pose, t)
+                            };
+                            let local = pose.inverse_transform_point(p0.lerp(p1, t));
+                            let d = aabb_distance(col.local_aabb(), local);
+                            if d >= margin + 0.5 * speed {
+                                d
+                            } else {
+                                col.project_local(local, NONE).signed_distance
+                            }
+                        };
+                        if reaches(&distance, speed, margin) {
+                            worst = motion;
+                        }
+                    }
+                }
+                worst
+            })
+            .collect();
+        per_chunk.into_iter().fold(0.0f32, f32::max)
     }
 
     /// Runs the next substep of the frame begun by [`begin_frame`](Self::begin_frame): colliders
@@ -621,13 +789,31 @@ impl SkinCollision {
         d.moved += c.moved;
         d.exact_queries += c.exact_queries;
         d.cache_hits += c.cache_hits;
+        d.certified_queries += c.certified;
         d.skipped_aabb += c.skipped_aabb;
         d.skipped_bound += c.skipped_bound;
         d.swept_hits += c.swept_hits;
     }
 
+    /// Forgets the contacts the solver held ([`Projection::hold`]): only projections within
+    /// one relaxation keep vertices on the surface.
+    fn release_held(&mut self) {
+        for &v in &self.held_vertices {
+            if let Some(s) = self.states.get_mut(v as usize) {
+                s.held = [NONE; TOUCHES];
+            }
+        }
+        self.held_vertices.clear();
+        self.active.clear();
+        self.active_owner.clear();
+    }
+
     /// One contact pass over `x` (caller's order), parallel over fixed chunks of vertices.
+    /// Passes other than projections (`swept == false`) first release the held contacts.
     fn pass(&mut self, x: &mut [Vec3], swept: bool) -> (Counters, Vec<u32>) {
+        if !swept {
+            self.release_held();
+        }
         let nc = self.colliders.len();
         if nc == 0 || x.is_empty() {
             return (Counters::default(), Vec::new());
@@ -674,6 +860,8 @@ impl Projection for SkinCollision {
     /// thickness, after a swept test along its step since the last pass.
     fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool {
         let n = self.vertex_count();
+        self.active.clear();
+        self.active_owner.clear();
         if x.len() != n || order.len() != n {
             self.diagnostics.length_mismatch = true;
             return false;
@@ -695,7 +883,49 @@ impl Projection for SkinCollision {
         self.scratch = xc;
         let moved = counters.moved > 0;
         self.record(counters, unresolved);
+        self.active.clear();
+        self.active_owner.clear();
+        let stick = self.config.friction >= 1.0;
+        for (i, &o) in order.iter().enumerate() {
+            let state = &self.states[o as usize];
+            for t in state.touches.iter().take_while(|t| t.collider != NONE) {
+                self.active.push(ActiveContact {
+                    vertex: i as u32,
+                    normal: t.normal,
+                    stick: stick && state.anchor.collider == t.collider,
+                });
+                self.active_owner.push((o, t.collider));
+            }
+        }
         moved
+    }
+
+    /// Every vertex within the contact band (`thickness × (1 + contact_band)`) of a collider
+    /// after the last projection, one entry per collider (at most two), with the outward
+    /// normal at its closest surface point. Sticks with `friction == 1` on the collider the
+    /// vertex is anchored to.
+    fn active_contacts(&self) -> &[ActiveContact] {
+        &self.active
+    }
+
+    /// Held contacts are kept at exactly the thickness by the next projection: a vertex that
+    /// drifted outward (a tangent step over a convex surface) is put back on it.
+    fn hold(&mut self, held: &[bool]) {
+        for &v in &self.held_vertices {
+            if let Some(s) = self.states.get_mut(v as usize) {
+                s.held = [NONE; TOUCHES];
+            }
+        }
+        self.held_vertices.clear();
+        for (&(v, c), _) in self.active_owner.iter().zip(held).filter(|(_, h)| **h) {
+            let Some(state) = self.states.get_mut(v as usize) else {
+                continue;
+            };
+            if let Some(slot) = state.held.iter_mut().find(|s| **s == NONE) {
+                *slot = c;
+            }
+            self.held_vertices.push(v);
+        }
     }
 }
 
@@ -748,6 +978,9 @@ impl Ctx<'_> {
         for round in 0..=cfg.max_rounds {
             let check_only = round == cfg.max_rounds;
             let mut pushed = false;
+            // The contacts of the last round, which saw the final position.
+            state.touches = [Touch::NONE; TOUCHES];
+            let mut touches = 0;
             for (c, col) in self.colliders.iter().enumerate() {
                 let slot = &mut slots[c];
                 let travel = self.travel[c];
@@ -763,11 +996,14 @@ impl Ctx<'_> {
                     counters.skipped_aabb += 1;
                     continue;
                 }
-                let hint = slot.part;
-                let proj = col.project_local(local, hint);
-                counters.exact_queries += 1;
-                counters.cache_hits += (proj.part == hint) as u64;
-                slot.part = proj.part;
+                let (proj, answer) = slot.project(col, local, travel, (0.25 * band).max(1e-5));
+                match answer {
+                    Answer::Certified => counters.certified += 1,
+                    Answer::Searched { hit } => {
+                        counters.exact_queries += 1;
+                        counters.cache_hits += hit as u64;
+                    }
+                }
                 let s = proj.signed_distance;
                 if s >= band {
                     slot.set(s, *p, travel);
@@ -779,14 +1015,23 @@ impl Ctx<'_> {
                     coords: proj.coords,
                 };
                 touching = contact;
+                if touches < TOUCHES {
+                    state.touches[touches] = Touch {
+                        collider: c as u32,
+                        normal: pose.transform_vector(proj.normal),
+                    };
+                    touches += 1;
+                }
                 if state.anchor.collider == NONE {
                     state.anchor = contact;
                 }
                 let mut q = local;
                 let mut moved = false;
-                if s < h - tol {
+                // Held contacts are kept at the thickness from outside too (surface drift).
+                let lifted = s > h + tol && state.held.contains(&(c as u32));
+                if s < h - tol || lifted {
                     if check_only {
-                        unresolved = true;
+                        unresolved |= s < h - tol;
                         slot.set(s.max(0.0), *p, travel);
                         continue;
                     }
@@ -829,6 +1074,29 @@ impl Ctx<'_> {
         state.last = *p;
         (*p != start, unresolved)
     }
+}
+
+/// Whether a path along which `distance(t)` (`t ∈ [0, 1]`) is 1-Lipschitz at `speed` can come
+/// below `margin`: bisection with exact ends, up to 64 pieces (`true` when not disproved).
+fn reaches(distance: &impl Fn(f32) -> f32, speed: f32, margin: f32) -> bool {
+    let mut stack = vec![(0.0f32, distance(0.0), 1.0f32, distance(1.0))];
+    while let Some((ta, sa, tb, sb)) = stack.pop() {
+        if sa.min(sb) < margin {
+            return true;
+        }
+        let dip = 0.5 * speed * (tb - ta);
+        if sa.min(sb) - dip >= margin {
+            continue;
+        }
+        if tb - ta <= 1.0 / 64.0 {
+            return true;
+        }
+        let tm = 0.5 * (ta + tb);
+        let sm = distance(tm);
+        stack.push((tm, sm, tb, sb));
+        stack.push((ta, sa, tm, sm));
+    }
+    false
 }
 
 /// Distance from `p` to the box (0 inside).

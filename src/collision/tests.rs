@@ -5,7 +5,7 @@ use parry3d::shape::{TriMesh as ParryMesh, TriMeshFlags};
 
 use super::*;
 use crate::mesh::TriMesh;
-use crate::solver::{Loads, RelaxConfig, SpringSystem, VertexAnchor};
+use crate::solver::{Loads, RelaxConfig, RelaxReport, SpringSystem, StopReason, VertexAnchor};
 use crate::stiffness::{Modulus, StiffnessRule};
 
 /// A flat `n` x `n` sheet of side `size` centred on (0, 0, z).
@@ -333,6 +333,16 @@ fn sheet_draped_over_a_sphere_rests_at_the_thickness() {
 /// Sheet over a ball sliding along x by `shift` over `frames` frames; returns the sheet at the
 /// end and at the start.
 fn slide(friction: f32, shift: f32, frames: u32) -> (Vec<Vec3>, Vec<Vec3>, Vec<Vec3>) {
+    slide_with(friction, shift, frames, |_| {})
+}
+
+/// [`slide`], calling `between` before every frame.
+fn slide_with(
+    friction: f32,
+    shift: f32,
+    frames: u32,
+    between: impl Fn(&mut SkinCollision),
+) -> (Vec<Vec3>, Vec<Vec3>, Vec<Vec3>) {
     let (r, h) = (0.3, 0.01);
     let start = Vec3::new(-0.5 * shift, 0.0, -0.22);
     let mesh = sheet(11, 1.0, 0.0);
@@ -383,6 +393,7 @@ fn slide(friction: f32, shift: f32, frames: u32) -> (Vec<Vec3>, Vec<Vec3>, Vec<V
             .unwrap()
             .set_pose(Pose::from_translation(c))
             .unwrap();
+        between(&mut contact);
         relax(&mut contact, &mut x);
     }
     // A fresh drape over the ball at its final place.
@@ -670,4 +681,257 @@ fn per_vertex_thickness_and_results_independent_of_thread_count() {
             .to_string()
             .contains("vertex 1")
     );
+}
+
+/// The old behaviour, for comparison: the same projection without its contact set (the
+/// trait's default methods), so the contact forces stay in the residual.
+struct Blind<'a>(&'a mut SkinCollision);
+
+impl Projection for Blind<'_> {
+    fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool {
+        self.0.project(x, order)
+    }
+}
+
+/// A sheet pinned at its border draped over a ball poking through it, relaxed with
+/// `projection`.
+struct Drape {
+    system: SpringSystem,
+    pinned: Vec<bool>,
+    x: Vec<Vec3>,
+    centre: Vec3,
+    radius: f32,
+    h: f32,
+}
+
+impl Drape {
+    fn new(n: u32) -> (Self, SkinCollision) {
+        let (radius, centre, h) = (0.3, Vec3::new(0.0, 0.0, -0.2), 0.01);
+        let mesh = sheet(n, 1.0, 0.0);
+        let system = springs(&mesh);
+        let pinned: Vec<bool> = mesh
+            .positions()
+            .iter()
+            .map(|p| p.x.abs() > 0.49 || p.y.abs() > 0.49)
+            .collect();
+        let config = ContactConfig {
+            thickness_m: h,
+            ..ContactConfig::DEFAULT
+        };
+        let mut contact = SkinCollision::new(mesh.positions().len(), config).unwrap();
+        contact.add_collider(
+            ColliderMesh::ball(radius)
+                .unwrap()
+                .with_pose(Pose::from_translation(centre)),
+        );
+        let mut x = mesh.positions().to_vec();
+        contact.advance_frame(&mut x).unwrap();
+        let drape = Self {
+            system,
+            pinned,
+            x,
+            centre,
+            radius,
+            h,
+        };
+        (drape, contact)
+    }
+
+    fn relax(&mut self, config: &RelaxConfig, projection: &mut dyn Projection) -> RelaxReport {
+        let loads = Loads {
+            pinned: Some(&self.pinned),
+            ..Default::default()
+        };
+        self.system
+            .relax_projected(&mut self.x, &loads, config, Some(projection))
+            .unwrap()
+    }
+
+    /// Checks the KKT conditions of the contact problem independently of the solver: no vertex
+    /// inside the ball (parry's query), every free vertex force-free except contact vertices
+    /// (at the thickness), whose net force is along the outward normal and pushes into the
+    /// ball (the contact pushes back), within `tol_n` per vertex. Returns the number of
+    /// contact vertices.
+    fn check_kkt(&self, tol_n: f32) -> usize {
+        let ball = parry3d::shape::Ball::new(self.radius);
+        let pose = Pose::from_translation(self.centre);
+        let f = self.system.spring_forces(&self.x).unwrap();
+        let mut contacts = 0;
+        for (i, p) in self.x.iter().enumerate() {
+            let proj = ball.project_point(&pose, *p, false);
+            assert!(!proj.is_inside, "vertex {i} inside");
+            let gap = proj.point.distance(*p) - self.h;
+            assert!(
+                gap > -1e-5,
+                "vertex {i} closer than the thickness by {}",
+                -gap
+            );
+            if self.pinned[i] {
+                continue;
+            }
+            let n = (*p - self.centre).normalize();
+            if gap < 1e-5 {
+                contacts += 1;
+                let push = f[i].dot(n);
+                let tangential = (f[i] - n * push).length();
+                assert!(push < tol_n, "contact {i} pulled off by {push} N");
+                assert!(
+                    tangential < tol_n,
+                    "contact {i}: tangential force {tangential} N"
+                );
+            } else {
+                assert!(
+                    f[i].length() < tol_n,
+                    "free vertex {i} (gap {gap}): force {} N",
+                    f[i].length()
+                );
+            }
+        }
+        contacts
+    }
+}
+
+#[test]
+fn draped_sheet_converges_to_the_kkt_point_of_the_contact_problem() {
+    let config = RelaxConfig {
+        max_iterations: 2000,
+        tolerance: 1e-5,
+        ..RelaxConfig::DEFAULT
+    };
+    let (mut drape, mut contact) = Drape::new(21);
+    let report = drape.relax(&config, &mut contact);
+    assert_eq!(report.stop, StopReason::Converged, "{report:?}");
+    assert!(contact.diagnostics().unresolved.is_empty());
+    // Per-vertex force tolerance: the residual bound, from the force scale the report names.
+    let tol_n = 2.0 * config.tolerance * report.force_scale;
+    let contacts = drape.check_kkt(tol_n);
+    // The cap pokes 0.1 m through the sheet: a disc of radius ~0.24 m of the sheet lies on it.
+    assert!(contacts >= 9, "{contacts} contacts");
+    eprintln!("drape: {report:?}, {contacts} contacts");
+
+    // Without the contact set the same solve cannot meet the tolerance in 5x the iterations.
+    let (mut blind, mut blind_contact) = Drape::new(21);
+    let budget = 5 * report.iterations.max(20);
+    let old = blind.relax(
+        &RelaxConfig {
+            max_iterations: budget,
+            stagnation_window: 0,
+            ..config
+        },
+        &mut Blind(&mut blind_contact),
+    );
+    eprintln!("blind drape: {old:?}");
+    assert_ne!(old.stop, StopReason::Converged, "{old:?}");
+}
+
+#[test]
+fn far_fast_colliders_cost_no_substep_near_ones_do() {
+    let h = 0.01;
+    let mesh = sheet(11, 1.0, 0.0);
+    let config = ContactConfig {
+        thickness_m: h,
+        ..ContactConfig::DEFAULT
+    };
+    let mut contact = SkinCollision::new(mesh.positions().len(), config).unwrap();
+    let far = contact.add_collider(
+        ColliderMesh::ball(0.1)
+            .unwrap()
+            .with_pose(Pose::from_translation(Vec3::new(5.0, 0.0, 0.0))),
+    );
+    let near = contact.add_collider(
+        ColliderMesh::ball(0.1)
+            .unwrap()
+            .with_pose(Pose::from_translation(Vec3::new(0.0, 0.0, -0.2))),
+    );
+    let mut x = mesh.positions().to_vec();
+    contact.advance_frame(&mut x).unwrap();
+    // 3 m in one frame, 300 thicknesses, but never within 4 m of the sheet.
+    let moved = Pose::from_translation(Vec3::new(5.0, 3.0, 0.0));
+    contact.collider_mut(far).unwrap().set_pose(moved).unwrap();
+    assert_eq!(contact.begin_frame(&mut x).unwrap().substeps, 1);
+    while contact.substep(&mut x).unwrap() > 0 {}
+    // The near ball rises 0.15 m, through the sheet's plane: the relative motion must be split
+    // into steps of at most half a thickness.
+    let rise = Pose::from_translation(Vec3::new(0.0, 0.0, -0.05));
+    contact.collider_mut(near).unwrap().set_pose(rise).unwrap();
+    let plan = contact.begin_frame(&mut x).unwrap();
+    assert!(plan.substeps >= 30, "{plan:?}");
+    while contact.substep(&mut x).unwrap() > 0 {}
+    // Both at once: the near one decides.
+    contact
+        .collider_mut(far)
+        .unwrap()
+        .set_pose(Pose::from_translation(Vec3::new(5.0, 0.0, 0.0)))
+        .unwrap();
+    contact
+        .collider_mut(near)
+        .unwrap()
+        .set_pose(Pose::from_translation(Vec3::new(0.0, 0.0, -0.2)))
+        .unwrap();
+    let both = contact.begin_frame(&mut x).unwrap();
+    assert!(both.substeps >= 30 && both.substeps < 300, "{both:?}");
+}
+
+#[test]
+fn contact_solve_is_bit_identical_for_any_thread_count() {
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let (mut drape, mut contact) = Drape::new(33);
+            let report = drape.relax(&budget(300), &mut contact);
+            (drape.x, report)
+        })
+    };
+    let (x1, r1) = run(1);
+    let (x2, r2) = run(2);
+    let bits = |x: &[Vec3]| {
+        x.iter()
+            .flat_map(|p| p.to_array().map(f32::to_bits))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&x1), bits(&x2));
+    assert_eq!(r1.iterations, r2.iterations);
+    assert_eq!(r1.energy.to_bits(), r2.energy.to_bits());
+}
+
+/// Friction across frames as the ECS runs it: the query cache cleared before every frame (exact
+/// checkpoints) keeps each vertex's last contact, so a ball sliding over ten frames with
+/// `friction == 1` carries the sheet along, and without friction it does not. Clearing
+/// everything (the anchors too) loses the grip at every frame.
+#[test]
+fn friction_carries_the_sheet_across_frames_with_the_query_cache_cleared() {
+    let shift = 0.1;
+    let (stuck, initial, _) = slide_with(1.0, shift, 10, SkinCollision::clear_query_cache);
+    let carried_stuck = carried(&stuck, &initial);
+    assert!(
+        carried_stuck > 0.5 * shift,
+        "sticking carried only {carried_stuck}"
+    );
+    let (free, initial_free, _) = slide_with(0.0, shift, 10, SkinCollision::clear_query_cache);
+    let carried_free = carried(&free, &initial_free);
+    assert!(
+        carried_free.abs() < 0.2 * shift,
+        "frictionless carried {carried_free}"
+    );
+    let (lost, initial_lost, _) = slide_with(1.0, shift, 10, SkinCollision::clear_cache);
+    let carried_lost = carried(&lost, &initial_lost);
+    assert!(
+        carried_lost < carried_stuck,
+        "{carried_lost} >= {carried_stuck}"
+    );
+    // The anchors round-trip through their public form.
+    let mut contact = SkinCollision::new(2, ContactConfig::DEFAULT).unwrap();
+    contact.add_collider(ColliderMesh::ball(1.0).unwrap());
+    let mut x = vec![Vec3::new(0.0, 0.0, 0.5), Vec3::new(0.0, 0.0, 3.0)];
+    contact.advance_frame(&mut x).unwrap();
+    let anchors = contact.friction_anchors();
+    assert!(anchors[0].is_some() && anchors[1].is_none());
+    let mut other = SkinCollision::new(2, ContactConfig::DEFAULT).unwrap();
+    assert!(other.set_friction_anchors(&anchors).is_err()); // no collider 0 there
+    other.add_collider(ColliderMesh::ball(1.0).unwrap());
+    other.set_friction_anchors(&anchors).unwrap();
+    assert_eq!(other.friction_anchors(), anchors);
 }

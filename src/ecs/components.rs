@@ -384,11 +384,11 @@ pub struct RelaxDiagnostics {
 /// substep a contact pass, then a relaxation projected onto the colliders, the frame's
 /// iteration budget shared by the substeps.
 ///
-/// Every frame starts from a cleared contact cache ([`SkinCollision::clear_cache`]), so a frame
-/// depends only on the skin positions and the colliders' previous and current states, which
-/// makes checkpoints exact; the cache still serves the many passes within a frame. Friction
-/// therefore anchors a vertex where it first touches a collider within the frame: it resists
-/// slip during a frame, not across frames.
+/// Every frame starts from a cleared query cache ([`SkinCollision::clear_query_cache`]), so a
+/// frame depends only on the skin positions, each vertex's last contact (its friction anchor,
+/// kept across frames so friction carries the skin over many frames) and the colliders'
+/// previous and current states, all part of a checkpoint, which makes checkpoints exact; the
+/// cache still serves the many passes within a frame.
 #[derive(Component, Debug, Clone)]
 pub struct SkinContact {
     /// The contact state.

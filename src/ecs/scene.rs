@@ -14,7 +14,7 @@ use super::spawn::{SkinBuilder, vertex_normals};
 use super::{DermisSystems, SkinError};
 use crate::animation::{apply_morph_targets, skin_normals, skin_positions};
 use crate::collision::{
-    ColliderMesh, CollisionError, ContactConfig, ContactDiagnostics, SkinCollision,
+    ColliderMesh, CollisionError, ContactConfig, ContactDiagnostics, FrictionAnchor, SkinCollision,
 };
 use crate::gltf::{Capsule, GltfError, Primitive, Role, Scene};
 use crate::mesh::TriMesh;
@@ -944,28 +944,36 @@ pub struct SkinState {
     pub positions: Vec<Vec3>,
     /// Last positions that passed the non-finite guard, welded order, m.
     pub last_valid: Vec<Vec3>,
+    /// Each vertex's last contact, where friction anchors it in the next frame (welded order;
+    /// empty without collision). Absent from older checkpoints: no anchors then.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub friction_anchors: Vec<Option<FrictionAnchor>>,
 }
 
 /// Captures the state of the scene in `world` at a frame boundary (after a schedule run).
 ///
-/// The contact cache is not part of it: every frame starts from a cleared cache (see
-/// [`SkinContact`]), and the colliders' previous-frame state is recomputed from the clock.
+/// The contact query cache is not part of it: every frame starts from a cleared cache (see
+/// [`SkinContact`]); the friction anchors are, and the colliders' previous-frame state is
+/// recomputed from the clock.
 pub fn capture_state(world: &World) -> Result<SceneState, SceneError> {
     let animation = world
         .get_resource::<SceneAnimation>()
         .ok_or(SceneError::NotSpawned)?;
     let (clock, clip) = (animation.clock, animation.clip);
     let mut query = world
-        .try_query::<(&SceneMesh, &SkinPositions, &LastValidPositions)>()
+        .try_query::<(Entity, &SceneMesh, &SkinPositions, &LastValidPositions)>()
         .ok_or(SceneError::NotSpawned)?;
     let mut skins: Vec<SkinState> = query
         .iter(world)
-        .map(|(tag, x, last)| SkinState {
+        .map(|(entity, tag, x, last)| SkinState {
             name: tag.name.clone(),
             node: tag.node,
             primitive: tag.primitive,
             positions: x.0.clone(),
             last_valid: last.0.clone(),
+            friction_anchors: world
+                .get::<SkinContact>(entity)
+                .map_or_else(Vec::new, |c| c.collision.friction_anchors()),
         })
         .collect();
     skins.sort_by_key(|s| (s.node, s.primitive));
@@ -1002,7 +1010,12 @@ pub fn restore_state(world: &mut World, state: &SceneState) -> Result<(), SceneE
             ));
         }
     }
-    let mut query = world.query::<(&SceneMesh, &mut SkinPositions, &mut LastValidPositions)>();
+    let mut query = world.query::<(
+        &SceneMesh,
+        &mut SkinPositions,
+        &mut LastValidPositions,
+        Option<&mut SkinContact>,
+    )>();
     let count = query.iter(world).count();
     if count != state.skins.len() {
         return mismatch(format!(
@@ -1010,7 +1023,7 @@ pub fn restore_state(world: &mut World, state: &SceneState) -> Result<(), SceneE
             state.skins.len()
         ));
     }
-    for (tag, mut x, mut last) in query.iter_mut(world) {
+    for (tag, mut x, mut last, contact) in query.iter_mut(world) {
         let Some(s) = state
             .skins
             .iter()
@@ -1028,6 +1041,15 @@ pub fn restore_state(world: &mut World, state: &SceneState) -> Result<(), SceneE
         }
         x.0.copy_from_slice(&s.positions);
         last.0.copy_from_slice(&s.last_valid);
+        if let Some(mut contact) = contact {
+            let collision = &mut contact.collision;
+            collision.clear_cache();
+            if !s.friction_anchors.is_empty() {
+                collision
+                    .set_friction_anchors(&s.friction_anchors)
+                    .or_else(|e| mismatch(format!("skin {}: {e}", tag.name)))?;
+            }
+        }
     }
     world.resource_mut::<SceneAnimation>().clock.frame = state.clock.frame;
     let mut schedule = Schedule::default();

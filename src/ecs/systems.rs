@@ -381,9 +381,11 @@ fn relax_one(
 /// last one, whose result is the frame's. The report sums the iterations and keeps the last
 /// substep's residual, energy and stop reason.
 ///
-/// The contact cache is cleared first, so the frame depends only on the skin positions and the
-/// colliders' previous and current states (what [`crate::ecs::capture_state`] restores); the
-/// cache still serves every pass within the frame.
+/// The query cache is cleared first ([`crate::collision::SkinCollision::clear_query_cache`]), so the frame depends
+/// only on the skin positions, the friction anchors (each vertex's last contact, kept across
+/// frames so friction carries the skin along a collider over many frames) and the colliders'
+/// previous and current states, all of which [`crate::ecs::capture_state`] records; the cache
+/// still serves every pass within the frame.
 fn relax_with_contact(
     system: &SpringSystem,
     x: &mut [Vec3],
@@ -392,7 +394,7 @@ fn relax_with_contact(
     contact: &mut SkinContact,
 ) -> Result<RelaxReport, SkinError> {
     let collision = &mut contact.collision;
-    collision.clear_cache();
+    collision.clear_query_cache();
     let plan = collision.begin_frame(x)?;
     let substeps = plan.substeps.max(1);
     let intermediate = (config.max_iterations / (2 * substeps)).max(1);

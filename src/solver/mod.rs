@@ -1,6 +1,7 @@
 //! Spring forces and energy, and the quasi-static relaxation that settles the skin.
 #![doc = include_str!("README.md")]
 
+mod contact;
 mod kernels;
 mod reorder;
 mod sell;
@@ -14,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::mesh::TriMesh;
+use contact::ContactSet;
 use kernels::{Frame, Sums, dot, update_direction};
 use sell::Sell;
 
@@ -86,15 +88,50 @@ pub struct Loads<'a> {
     pub anchors: Option<&'a [VertexAnchor]>,
 }
 
+/// A contact plane a [`Projection`] holds a vertex against (see
+/// [`Projection::active_contacts`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ActiveContact {
+    /// The vertex (internal index).
+    pub vertex: u32,
+    /// Outward unit normal of the contact plane: the direction the contact can push.
+    pub normal: Vec3,
+    /// `true` when friction sticks the vertex where it is on the surface: a held contact then
+    /// takes the tangential force too.
+    pub stick: bool,
+}
+
 /// A constraint applied after each accepted step (the collision issue's sliding contact).
 ///
 /// `x` is in the system's internal order; `order[i]` is the caller's index of internal vertex
-/// `i`. Return `true` if any vertex moved, which restarts the conjugate directions.
+/// `i`. [`project`](Self::project) returns `true` if any vertex moved (the solver then
+/// recomputes the forces).
+///
+/// A projection that reports its [`active_contacts`](Self::active_contacts) makes the solve
+/// converge on the contact set: for a contact whose net force pushes into the collider, the
+/// solver drops that normal component from the residual and the search direction (the contact
+/// takes it), so the conjugate gradients work in the tangent space of the contacts; a contact
+/// whose net force pulls it away is released. The default methods report no contacts: the
+/// projection then only moves vertices, and a solve against it can stop only on its budget or
+/// a stall.
 pub trait Projection {
     /// Projects `x` onto the admissible set.
     fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool;
-}
 
+    /// The contacts the last [`project`](Self::project) left active (vertices on or just above
+    /// the constraint surface), sorted by vertex; a vertex may have one entry per contact plane.
+    fn active_contacts(&self) -> &[ActiveContact] {
+        &[]
+    }
+
+    /// Which of the last [`active_contacts`](Self::active_contacts) the solver holds (one flag
+    /// per entry; empty: none): the next [`project`](Self::project) should keep those vertices
+    /// on the constraint surface, correcting a drift away from it as well as into it (a step
+    /// in the tangent plane of a curved surface leaves it).
+    fn hold(&mut self, held: &[bool]) {
+        let _ = held;
+    }
+}
 /// Iteration budget and tolerance of a relaxation.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -112,8 +149,9 @@ pub struct RelaxConfig {
     /// Stop as [`StopReason::Stalled`] when the residual has not fallen below 90 % of its best
     /// value for this many iterations (0: never). With f32 positions the residual reaches a
     /// floor and then only creeps while the energy changes in its last digits; this stops
-    /// there instead of spending the whole budget. Not applied with a constraint projection,
-    /// whose contact forces keep the residual up while the energy still falls.
+    /// there instead of spending the whole budget. Under a projection the residual is the
+    /// projected one (contact forces held by active contacts left out), so the stop works there
+    /// too.
     pub stagnation_window: u32,
 }
 
@@ -423,8 +461,12 @@ impl SpringSystem {
         self.relax_projected(x, loads, config, None)
     }
 
-    /// [`relax`](Self::relax) with a constraint projection after every accepted step. A
-    /// projection may raise the energy: the monotone-energy guarantee holds between projections.
+    /// [`relax`](Self::relax) with a constraint projection before the first step and after
+    /// every accepted one. A projection may raise the energy: the monotone-energy guarantee holds
+    /// between projections. The contacts the projection reports
+    /// ([`Projection::active_contacts`]) and whose net force pushes into the constraint are held:
+    /// their normal force leaves the residual and the search direction, so the solve converges
+    /// on the contact set (see the module documentation).
     pub fn relax_projected(
         &self,
         x: &mut [Vec3],
@@ -470,7 +512,19 @@ impl SpringSystem {
         let mut sums_scratch = vec![Sums::default(); chunks];
         let mut scalar_scratch = vec![0.0f64; chunks];
         let mut r = vec![Vec3::ZERO; n];
-        let sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
+        // The projection's active contacts and the ones held (their normal force is taken by
+        // the contact, so it leaves the residual and the directions).
+        let mut contacts = ContactSet::default();
+        if let Some(p) = projection.as_deref_mut() {
+            p.hold(&[]);
+            p.project(&mut xi, &self.order);
+        }
+        let mut sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
+        if let Some(p) = projection.as_deref_mut() {
+            contacts.refresh(p.active_contacts());
+            contacts.constrain(&mut r, &inv_diag, &mut sums);
+            p.hold(&contacts.held_flags);
+        }
         let mut energy = sums.energy;
         let external_norm = external.as_deref().map_or(0.0, |f| {
             let free: Vec<Vec3> = f
@@ -511,7 +565,8 @@ impl SpringSystem {
         let mut d = vec![Vec3::ZERO; n];
         let mut trial = vec![Vec3::ZERO; n];
         let mut rz = sums.rzr;
-        let mut slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch);
+        let mut slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
+            + contacts.constrain_direction(&mut d, &r);
         let mut iterations = 0;
         let mut stop = StopReason::Budget;
         let (mut best, mut best_at) = (r_norm, 0u32);
@@ -522,8 +577,7 @@ impl SpringSystem {
             }
             if r_norm < 0.9 * best {
                 (best, best_at) = (r_norm, iterations);
-            } else if projection.is_none()
-                && config.stagnation_window > 0
+            } else if config.stagnation_window > 0
                 && iterations - best_at >= config.stagnation_window
             {
                 stop = StopReason::Stalled;
@@ -531,7 +585,8 @@ impl SpringSystem {
             }
             if slope <= 0.0 {
                 // Not a descent direction: restart with steepest (preconditioned) descent.
-                slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch);
+                slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
+                    + contacts.constrain_direction(&mut d, &r);
                 if rz <= 0.0 || slope <= 0.0 {
                     stop = StopReason::Stalled;
                     break;
@@ -549,6 +604,7 @@ impl SpringSystem {
             for attempt in 0..30 {
                 if attempt > 0 {
                     frame.gather(&xi, None, &mut r, &mut sums_scratch);
+                    contacts.reapply(&mut r);
                 }
                 let a = alpha as f32;
                 trial
@@ -564,34 +620,48 @@ impl SpringSystem {
                 alpha *= 0.5;
             }
             let Some(mut sums) = accepted else {
-                let sums = frame.gather(&xi, None, &mut r, &mut sums_scratch);
+                let mut sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
+                contacts.constrain(&mut r, &inv_diag, &mut sums);
                 r_norm = sums.rr.sqrt();
                 stop = StopReason::Stalled;
                 break;
             };
             energy = sums.energy;
             iterations += 1;
+            // `Σ w r·r_old` against the previous (projected) residual, taken at the trial point:
+            // a projection that keeps the held set only corrects a drift, and the held
+            // vertices' residuals are tangent to their contacts before and after.
+            let rz_old = sums.rz_old;
             let mut restart = false;
             std::mem::swap(&mut xi, &mut trial);
-            if let Some(p) = projection.as_deref_mut()
-                && p.project(&mut xi, &self.order)
-            {
-                sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
-                energy = sums.energy;
-                restart = true;
+            if let Some(p) = projection.as_deref_mut() {
+                if p.project(&mut xi, &self.order) {
+                    sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
+                    energy = sums.energy;
+                }
+                contacts.refresh(p.active_contacts());
+                restart = contacts.constrain(&mut r, &inv_diag, &mut sums);
+                p.hold(&contacts.held_flags);
+            }
+            if restart {
+                // A new contact is progress the residual does not show (it may jump up as
+                // the contact set changes): the stagnation window starts again.
+                best_at = iterations;
+                best = sums.rr.sqrt();
             }
             if config.record_energy {
                 history.push(energy);
             }
             r_norm = sums.rr.sqrt();
-            // Polak-Ribiere+, preconditioned.
+            // Polak-Ribiere+, preconditioned; restarted when the held contact set changes.
             let beta = if restart || rz <= 0.0 {
                 0.0
             } else {
-                ((sums.rzr - sums.rz_old) / rz).max(0.0)
+                ((sums.rzr - rz_old) / rz).max(0.0)
             };
             rz = sums.rzr;
-            slope = update_direction(&mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch);
+            slope = update_direction(&mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch)
+                + contacts.constrain_direction(&mut d, &r);
         }
         if stop == StopReason::Budget && converged(r_norm) {
             stop = StopReason::Converged;

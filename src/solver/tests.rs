@@ -439,3 +439,132 @@ fn stagnation_stops_at_the_f32_floor_instead_of_spending_the_budget() {
     let report_off = s.relax(&mut y, &loads, &off).unwrap();
     assert!(report_off.iterations >= report.iterations);
 }
+
+/// A floor that reports its contacts: every vertex on it (within `band`), normal +z, and keeps
+/// held vertices on it.
+struct ContactFloor {
+    z: f32,
+    band: f32,
+    active: Vec<ActiveContact>,
+    held: Vec<u32>,
+}
+
+impl ContactFloor {
+    fn new(z: f32) -> Self {
+        Self {
+            z,
+            band: 1e-3,
+            active: Vec::new(),
+            held: Vec::new(),
+        }
+    }
+}
+
+impl Projection for ContactFloor {
+    fn project(&mut self, x: &mut [Vec3], _order: &[u32]) -> bool {
+        let mut moved = false;
+        for &v in &self.held {
+            let p = &mut x[v as usize];
+            if p.z != self.z && p.z < self.z + self.band {
+                p.z = self.z;
+                moved = true;
+            }
+        }
+        self.active.clear();
+        for (i, p) in x.iter_mut().enumerate() {
+            if p.z < self.z {
+                p.z = self.z;
+                moved = true;
+            }
+            if p.z < self.z + self.band {
+                self.active.push(ActiveContact {
+                    vertex: i as u32,
+                    normal: Vec3::Z,
+                    stick: false,
+                });
+            }
+        }
+        moved
+    }
+
+    fn active_contacts(&self) -> &[ActiveContact] {
+        &self.active
+    }
+
+    fn hold(&mut self, held: &[bool]) {
+        self.held = self
+            .active
+            .iter()
+            .zip(held)
+            .filter(|(_, h)| **h)
+            .map(|(c, _)| c.vertex)
+            .collect();
+    }
+}
+
+/// The sheet of `projection_holds_...` pressed onto the floor converges with the contact set,
+/// to a point that satisfies the contact problem's KKT conditions, checked from the spring
+/// forces alone: free vertices above the floor are force-free, vertices on it are pushed
+/// straight down (the floor pushes back), none is below. The floor without its contact set
+/// (the old behaviour) cannot converge in ten times the iterations.
+#[test]
+fn contact_set_converges_to_the_kkt_point_on_a_floor() {
+    let mesh = sheet(12);
+    let s = system(&mesh);
+    let n = mesh.positions().len();
+    let mut pinned = vec![false; n];
+    pinned[0] = true;
+    pinned[n - 1] = true;
+    let forces = vec![Vec3::new(0.0, 0.0, -0.5); n];
+    let loads = Loads {
+        forces: Some(&forces),
+        pinned: Some(&pinned),
+        ..Default::default()
+    };
+    let floor = -0.06;
+    let cfg = RelaxConfig {
+        max_iterations: 2000,
+        // Above the f32 floor of this sheet (~1e-4 of the load).
+        tolerance: 3e-4,
+        ..RelaxConfig::DEFAULT
+    };
+    let mut x = mesh.positions().to_vec();
+    let report = s
+        .relax_projected(&mut x, &loads, &cfg, Some(&mut ContactFloor::new(floor)))
+        .unwrap();
+    assert_eq!(report.stop, StopReason::Converged, "{report:?}");
+    let f = s.spring_forces(&x).unwrap();
+    let tol = 2.0 * cfg.tolerance * report.force_scale;
+    let mut on_floor = 0;
+    for i in (0..n).filter(|&i| !pinned[i]) {
+        let net = f[i] + forces[i];
+        assert!(x[i].z >= floor, "vertex {i} below the floor");
+        if x[i].z <= floor + 1e-6 {
+            on_floor += 1;
+            assert!(
+                net.z < tol,
+                "vertex {i} on the floor pulled up by {}",
+                net.z
+            );
+            assert!(net.truncate().length() < tol, "vertex {i}: {net}");
+        } else {
+            assert!(net.length() < tol, "free vertex {i}: {net}");
+        }
+    }
+    assert!(on_floor > 5, "{on_floor}");
+
+    let mut old = mesh.positions().to_vec();
+    let blind = RelaxConfig {
+        max_iterations: 10 * report.iterations,
+        stagnation_window: 0,
+        ..cfg
+    };
+    let old_report = s
+        .relax_projected(&mut old, &loads, &blind, Some(&mut Floor(floor)))
+        .unwrap();
+    assert_ne!(old_report.stop, StopReason::Converged, "{old_report:?}");
+    eprintln!(
+        "floor: {} iterations; without the contact set {old_report:?}",
+        report.iterations
+    );
+}

@@ -14,6 +14,8 @@ use parry3d::math::Pose;
 use parry3d::query::PointQuery;
 use parry3d::shape::{TriMesh as ParryMesh, TriMeshFlags};
 
+mod friction;
+
 fn arm() -> Scene {
     load(
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/arm.glb"),
