@@ -125,19 +125,12 @@ pub(crate) fn update_direction(
     beta: f32,
     partial: &mut [f64],
 ) -> f64 {
+    let isa = Isa::detect(0);
     d.par_chunks_mut(CHUNK)
+        .zip(r.par_chunks(CHUNK))
+        .zip(w.par_chunks(CHUNK))
         .zip(partial.par_iter_mut())
-        .enumerate()
-        .for_each(|(c, (d, p))| {
-            let base = c * CHUNK;
-            let mut slope = 0.0f64;
-            for (o, d) in d.iter_mut().enumerate() {
-                let i = base + o;
-                *d = r[i] * w[i] + *d * beta;
-                slope += r[i].dot(*d) as f64;
-            }
-            *p = slope;
-        });
+        .for_each(|(((d, r), w), p)| *p = simd::direction(isa, d, r, w, beta));
     total(partial)
 }
 

@@ -1,5 +1,6 @@
-//! Eight-lane force and curvature kernels over the sliced springs: AVX2 when the CPU has it
-//! (checked at run time), otherwise a portable path with bit-identical results.
+//! Eight-lane force and curvature kernels over the sliced springs: AVX2 (with AVX-512 for the
+//! f64 half) when the CPU has it (checked at run time), otherwise a portable path with
+//! bit-identical results.
 //!
 //! Both paths run the same generic code over a [`Lanes`] implementation, lane by lane the same
 //! IEEE operations in the same order (no fused multiply-add, no approximate reciprocals), so the
@@ -229,6 +230,9 @@ impl Lanes for Scalar {
         a
     }
 }
+
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
@@ -483,23 +487,48 @@ mod avx2 {
 }
 
 /// Which lanes the kernels run on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub(crate) enum Isa {
     /// Portable arrays.
     Scalar,
     /// AVX2 (x86-64 only, detected at run time).
     Avx2,
+    /// AVX2 for the f32 half, AVX-512F for the f64 half (x86-64 only, detected at run time).
+    Avx512,
 }
 
 impl Isa {
-    /// The fastest available for `n` vertices (gather offsets must fit in i32).
+    /// The fastest available for `n` vertices (gather offsets must fit in i32), capped by the
+    /// environment variable `DERMIS_SIMD` (`scalar`, `avx2` or `avx512`; for measurements:
+    /// every path gives the same bits).
     pub fn detect(n: usize) -> Self {
+        static BEST: std::sync::OnceLock<Isa> = std::sync::OnceLock::new();
+        let best = *BEST.get_or_init(|| {
+            let cap = match std::env::var("DERMIS_SIMD").ok().as_deref() {
+                Some("scalar") => Isa::Scalar,
+                Some("avx2") => Isa::Avx2,
+                _ => Isa::Avx512,
+            };
+            Isa::available(0)
+                .into_iter()
+                .rfind(|&isa| isa <= cap)
+                .unwrap_or(Isa::Scalar)
+        });
+        if n < (1 << 27) { best } else { Self::Scalar }
+    }
+
+    /// Every path this CPU can run for `n` vertices, slowest first.
+    pub fn available(n: usize) -> Vec<Self> {
+        let mut all = vec![Self::Scalar];
         #[cfg(target_arch = "x86_64")]
         if n < (1 << 27) && std::arch::is_x86_feature_detected!("avx2") {
-            return Self::Avx2;
+            all.push(Self::Avx2);
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                all.push(Self::Avx512);
+            }
         }
         let _ = n;
-        Self::Scalar
+        all
     }
 }
 
@@ -769,6 +798,17 @@ fn force_chunk_avx2(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3], w: Option
     force_chunk(avx2::Avx2, f, first, r, w)
 }
 
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f")]
+fn force_chunk_avx512(
+    f: &ForceInputs<'_>,
+    first: usize,
+    r: &mut [Vec3],
+    w: Option<&[f32]>,
+) -> Sums {
+    force_chunk(avx512::Avx512, f, first, r, w)
+}
+
 impl ForceInputs<'_> {
     /// Forces of vertices `first..first + r.len()` into `r`, with the chunk's partial sums.
     pub fn chunk(&self, isa: Isa, first: usize, r: &mut [Vec3], w: Option<&[f32]>) -> Sums {
@@ -776,8 +816,61 @@ impl ForceInputs<'_> {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Isa::Avx2` is only returned after the CPU check.
             Isa::Avx2 => unsafe { force_chunk_avx2(self, first, r, w) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2 and AVX-512F).
+            Isa::Avx512 => unsafe { force_chunk_avx512(self, first, r, w) },
             _ => force_chunk(Scalar, self, first, r, w),
         }
+    }
+}
+
+/// The direction update `d = w·r + β d` of one chunk; returns `Σ r·d` summed in vertex order
+/// (the same operations as the plain loop, eight vertices at a time).
+#[inline(always)]
+fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
+    assert!(r.len() == d.len() && w.len() == d.len());
+    let full = d.len() / LANES * LANES;
+    let b = l.splat(beta);
+    let mut slope = 0.0f64;
+    for o in (0..full).step_by(LANES) {
+        let (rp, dp) = (
+            r[o..].as_ptr().cast::<f32>(),
+            d[o..].as_mut_ptr().cast::<f32>(),
+        );
+        // SAFETY: eight vectors from `o < full` are in bounds of `r` and `d`.
+        let ([rx, ry, rz], [dx, dy, dz]) = unsafe { (l.load3(rp), l.load3(dp)) };
+        let wv = l.load(&w[o..o + LANES]);
+        let nx = l.add(l.mul(rx, wv), l.mul(dx, b));
+        let ny = l.add(l.mul(ry, wv), l.mul(dy, b));
+        let nz = l.add(l.mul(rz, wv), l.mul(dz, b));
+        // SAFETY: as above.
+        unsafe { l.store3(dp, [nx, ny, nz]) };
+        let rd = l.add(l.add(l.mul(rx, nx), l.mul(ry, ny)), l.mul(rz, nz));
+        for v in l.store(rd) {
+            slope += v as f64;
+        }
+    }
+    for i in full..d.len() {
+        d[i] = r[i] * w[i] + d[i] * beta;
+        slope += r[i].dot(d[i]) as f64;
+    }
+    slope
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn direction_chunk_avx2(d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
+    direction_chunk(avx2::Avx2, d, r, w, beta)
+}
+
+/// `d = w·r + β d` over one chunk, returning `Σ r·d` in vertex order (see
+/// [`super::kernels::update_direction`]).
+pub(crate) fn direction(isa: Isa, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only returned after the AVX2 check.
+        Isa::Avx2 | Isa::Avx512 => unsafe { direction_chunk_avx2(d, r, w, beta) },
+        _ => direction_chunk(Scalar, d, r, w, beta),
     }
 }
 
@@ -892,6 +985,18 @@ fn curvature_chunk_avx2(
     curvature_chunk(avx2::Avx2, sell, x, d, anchors, slices)
 }
 
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f")]
+fn curvature_chunk_avx512(
+    sell: &Sell,
+    x: &[Vec3],
+    d: &[Vec3],
+    anchors: Option<&[VertexAnchor]>,
+    slices: std::ops::Range<usize>,
+) -> f64 {
+    curvature_chunk(avx512::Avx512, sell, x, d, anchors, slices)
+}
+
 /// `Σ dᵀ H d` contributions of the vertices in `slices` (see [`Frame::curvature`]).
 ///
 /// [`Frame::curvature`]: super::kernels::Frame::curvature
@@ -907,6 +1012,9 @@ pub(crate) fn curvature(
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `Isa::Avx2` is only returned after the CPU check.
         Isa::Avx2 => unsafe { curvature_chunk_avx2(sell, x, d, anchors, slices) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2 and AVX-512F).
+        Isa::Avx512 => unsafe { curvature_chunk_avx512(sell, x, d, anchors, slices) },
         _ => curvature_chunk(Scalar, sell, x, d, anchors, slices),
     }
 }
@@ -1031,11 +1139,7 @@ mod tests {
     }
 
     fn isas() -> Vec<Isa> {
-        let mut v = vec![Isa::Scalar];
-        if Isa::detect(1000) != Isa::Scalar {
-            v.push(Isa::detect(1000));
-        }
-        v
+        Isa::available(1000)
     }
 
     #[test]
@@ -1065,6 +1169,38 @@ mod tests {
             }
             assert_eq!(sums.energy.to_bits(), want_energy.to_bits(), "{isa:?}");
             assert!(r.iter().zip(&pi).all(|(f, p)| !p || *f == Vec3::ZERO));
+        }
+    }
+
+    #[test]
+    fn direction_update_matches_the_plain_loop_bit_for_bit() {
+        // 1003 vertices: full slices and a partial tail; values spanning many magnitudes so
+        // any change of operation order would show in the low bits.
+        let n = 1003;
+        let v = |i: usize, a: f32| {
+            let t = i as f32 * a;
+            Vec3::new(t.sin() * 1e3, (t * 1.7).cos() * 1e-3, (t * 0.3).sin() + 0.1)
+        };
+        let r: Vec<Vec3> = (0..n).map(|i| v(i, 0.37)).collect();
+        let d0: Vec<Vec3> = (0..n).map(|i| v(i, 1.91)).collect();
+        let w: Vec<f32> = (0..n).map(|i| 1.0 / (3.0 + i as f32)).collect();
+        let beta = 0.618_034f32;
+        let mut want_d = d0.clone();
+        let mut want = 0.0f64;
+        for i in 0..n {
+            want_d[i] = r[i] * w[i] + want_d[i] * beta;
+            want += r[i].dot(want_d[i]) as f64;
+        }
+        for isa in isas() {
+            let mut d = d0.clone();
+            let got = direction(isa, &mut d, &r, &w, beta);
+            assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
+            for (a, b) in d.iter().zip(&want_d) {
+                assert_eq!(
+                    a.to_array().map(f32::to_bits),
+                    b.to_array().map(f32::to_bits)
+                );
+            }
         }
     }
 

@@ -1,0 +1,155 @@
+//! AVX-512 lanes: the f32 half as in AVX2, the f64 half in one 512-bit register instead of two.
+//!
+//! The f32 operations are those of [`Avx2`] (delegated), and the f64 ones are the same IEEE
+//! additions, subtractions and multiplications of the same operands, eight at once: the results
+//! are bit-identical to the AVX2 and portable paths.
+
+use std::arch::x86_64::*;
+
+use super::Lanes;
+use super::avx2::Avx2;
+
+/// AVX-512 lanes; only constructed after `is_x86_feature_detected!("avx512f")` (and AVX2), and
+/// only used inside `#[target_feature(enable = "avx2,avx512f")]` functions (every method is
+/// inlined there).
+#[derive(Clone, Copy)]
+pub(crate) struct Avx512;
+
+const A: Avx2 = Avx2;
+
+impl Lanes for Avx512 {
+    type F = <Avx2 as Lanes>::F;
+    type I = <Avx2 as Lanes>::I;
+    type M = <Avx2 as Lanes>::M;
+    type D = __m512d;
+    #[inline(always)]
+    fn splat(self, v: f32) -> Self::F {
+        A.splat(v)
+    }
+    #[inline(always)]
+    fn load(self, p: &[f32]) -> Self::F {
+        A.load(p)
+    }
+    #[inline(always)]
+    fn load_i(self, p: &[u32]) -> Self::I {
+        A.load_i(p)
+    }
+    #[inline(always)]
+    unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
+        // SAFETY: the caller's contract.
+        unsafe { A.gather(base, idx) }
+    }
+    #[inline(always)]
+    unsafe fn load3(self, p: *const f32) -> [Self::F; 3] {
+        // SAFETY: the caller's contract.
+        unsafe { A.load3(p) }
+    }
+    #[inline(always)]
+    unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
+        // SAFETY: the caller's contract.
+        unsafe { A.load8x8(p) }
+    }
+    #[inline(always)]
+    unsafe fn vec3s(self, p: *const f32, n: usize, idx: &[u32], j: Self::I) -> [Self::F; 3] {
+        // SAFETY: the caller's contract.
+        unsafe { A.vec3s(p, n, idx, j) }
+    }
+    #[inline(always)]
+    unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
+        // SAFETY: the caller's contract.
+        unsafe { A.store3(p, v) }
+    }
+    #[inline(always)]
+    fn flags(self, p: &[bool]) -> Self::M {
+        A.flags(p)
+    }
+    #[inline(always)]
+    fn dfrom(self, a: [f64; 8]) -> Self::D {
+        // SAFETY: eight doubles in bounds.
+        unsafe { _mm512_loadu_pd(a.as_ptr()) }
+    }
+    #[inline(always)]
+    fn times3(self, i: Self::I) -> Self::I {
+        A.times3(i)
+    }
+    #[inline(always)]
+    fn times8(self, i: Self::I) -> Self::I {
+        A.times8(i)
+    }
+    #[inline(always)]
+    fn add(self, a: Self::F, b: Self::F) -> Self::F {
+        A.add(a, b)
+    }
+    #[inline(always)]
+    fn sub(self, a: Self::F, b: Self::F) -> Self::F {
+        A.sub(a, b)
+    }
+    #[inline(always)]
+    fn mul(self, a: Self::F, b: Self::F) -> Self::F {
+        A.mul(a, b)
+    }
+    #[inline(always)]
+    fn div(self, a: Self::F, b: Self::F) -> Self::F {
+        A.div(a, b)
+    }
+    #[inline(always)]
+    fn sqrt(self, a: Self::F) -> Self::F {
+        A.sqrt(a)
+    }
+    #[inline(always)]
+    fn max(self, a: Self::F, b: Self::F) -> Self::F {
+        A.max(a, b)
+    }
+    #[inline(always)]
+    fn neg(self, a: Self::F) -> Self::F {
+        A.neg(a)
+    }
+    #[inline(always)]
+    fn gt(self, a: Self::F, b: Self::F) -> Self::M {
+        A.gt(a, b)
+    }
+    #[inline(always)]
+    fn le(self, a: Self::F, b: Self::F) -> Self::M {
+        A.le(a, b)
+    }
+    #[inline(always)]
+    fn gt_i(self, a: Self::I, b: Self::I) -> Self::M {
+        A.gt_i(a, b)
+    }
+    #[inline(always)]
+    fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
+        A.select(m, a, b)
+    }
+    #[inline(always)]
+    fn store(self, a: Self::F) -> [f32; 8] {
+        A.store(a)
+    }
+    #[inline(always)]
+    fn widen(self, a: Self::F) -> Self::D {
+        // Exact: every f32 is an f64.
+        unsafe { _mm512_cvtps_pd(a) }
+    }
+    #[inline(always)]
+    fn dsplat(self, v: f64) -> Self::D {
+        unsafe { _mm512_set1_pd(v) }
+    }
+    #[inline(always)]
+    fn dadd(self, a: Self::D, b: Self::D) -> Self::D {
+        unsafe { _mm512_add_pd(a, b) }
+    }
+    #[inline(always)]
+    fn dsub(self, a: Self::D, b: Self::D) -> Self::D {
+        unsafe { _mm512_sub_pd(a, b) }
+    }
+    #[inline(always)]
+    fn dmul(self, a: Self::D, b: Self::D) -> Self::D {
+        unsafe { _mm512_mul_pd(a, b) }
+    }
+    #[inline(always)]
+    fn dstore(self, a: Self::D) -> [f64; 8] {
+        let mut out = [0.0f64; 8];
+        // SAFETY: eight doubles of room.
+        unsafe { _mm512_storeu_pd(out.as_mut_ptr(), a) };
+        out
+    }
+}
