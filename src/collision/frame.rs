@@ -23,7 +23,7 @@ pub const SUBSTEP_ITERATIONS: u32 = u32::MAX;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameSchedule {
     /// Relaxation iterations of each intermediate substep, at most
-    /// `max_iterations / (2 · substeps)` (the last substep gets the rest of
+    /// `max(max_iterations / (2 · substeps), 1)` (the last substep gets the rest of
     /// [`RelaxConfig::max_iterations`]); 0: contact passes only.
     pub substep_iterations: u32,
 }
@@ -128,7 +128,7 @@ pub fn relax_frame(
     let substeps = plan.substeps.max(1);
     let intermediate = schedule
         .substep_iterations
-        .min(config.max_iterations / (2 * substeps));
+        .min((config.max_iterations / (2 * substeps)).max(1));
     let last = config
         .max_iterations
         .saturating_sub(intermediate * (substeps - 1))
@@ -169,4 +169,121 @@ pub fn relax_frame(
         substeps,
         contact_time,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::*;
+    use crate::collision::ContactConfig;
+    use crate::mesh::TriMesh;
+    use crate::stiffness::{Modulus, StiffnessRule};
+
+    /// A flat `n` x `n` sheet of side `size` in the z = 0 plane.
+    fn sheet(n: u32, size: f32) -> TriMesh {
+        let mut p = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                let u = i as f32 / (n - 1) as f32 - 0.5;
+                let v = j as f32 / (n - 1) as f32 - 0.5;
+                p.push(Vec3::new(u * size, v * size, 0.0));
+            }
+        }
+        let mut t = Vec::new();
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                let a = j * n + i;
+                t.push([a, a + 1, a + n + 1]);
+                t.push([a, a + n + 1, a + n]);
+            }
+        }
+        TriMesh::new(p, t).unwrap()
+    }
+
+    fn springs(mesh: &TriMesh) -> SpringSystem {
+        let k = StiffnessRule::AreaOverLengthSquared
+            .edge_stiffness(mesh, &Modulus::Uniform(1000.0))
+            .unwrap();
+        SpringSystem::from_mesh(mesh, &k).unwrap()
+    }
+
+    fn anchors(mesh: &TriMesh, shift: Vec3) -> Vec<VertexAnchor> {
+        // Anchored to a stretched, bulged copy: an equilibrium with stressed springs.
+        mesh.positions()
+            .iter()
+            .map(|p| VertexAnchor {
+                target: Vec3::new(1.2 * p.x, p.y, 0.02 * (8.0 * p.x).sin()) + shift,
+                normal: Vec3::Z,
+                k_normal: 50.0,
+                k_tangent: 5.0,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn anchor_prediction_carries_a_rigidly_moved_equilibrium() {
+        // Translation invariance: when every anchor moves by d, the equilibrium moves by d, so
+        // the predicted start is already converged while last frame's positions are not.
+        let mesh = sheet(12, 0.2);
+        let system = springs(&mesh);
+        let n = mesh.positions().len();
+        let config = RelaxConfig {
+            max_iterations: 2000,
+            tolerance: 1e-3,
+            force_scale: Some(1.0),
+            ..RelaxConfig::DEFAULT
+        };
+        let mut contact = SkinCollision::new(n, ContactConfig::DEFAULT).unwrap();
+        let before = anchors(&mesh, Vec3::ZERO);
+        let mut x = mesh.positions().to_vec();
+        let tight = RelaxConfig {
+            tolerance: 1e-4,
+            stagnation_window: 0,
+            ..config
+        };
+        let loads = Loads {
+            anchors: Some(&before),
+            ..Default::default()
+        };
+        let settle = system.relax(&mut x, &loads, &tight).unwrap();
+        assert!(settle.converged(), "{settle:?}");
+        let d = Vec3::new(0.01, -0.02, 0.005);
+        let after = anchors(&mesh, d);
+        let loads = Loads {
+            anchors: Some(&after),
+            ..Default::default()
+        };
+        let mut stale = x.clone();
+        let stale_run = relax_frame(
+            &system,
+            &mut contact.clone(),
+            &mut stale,
+            &loads,
+            &config,
+            &FrameSchedule::DEFAULT,
+        )
+        .unwrap();
+        assert!(stale_run.report.iterations > 0);
+        let expected: Vec<Vec3> = x.iter().map(|p| *p + d).collect();
+        predict_from_anchors(&mut x, &before, &after);
+        let run = relax_frame(
+            &system,
+            &mut contact,
+            &mut x,
+            &loads,
+            &config,
+            &FrameSchedule::DEFAULT,
+        )
+        .unwrap();
+        assert!(run.report.converged());
+        assert_eq!(run.report.iterations, 0);
+        for (p, e) in x.iter().zip(&expected) {
+            assert!(p.distance(*e) < 1e-6);
+        }
+        // The stale start converges to the same equilibrium, the long way.
+        for (p, e) in stale.iter().zip(&expected) {
+            assert!(p.distance(*e) < 1e-3, "{p} vs {e}");
+        }
+    }
 }
