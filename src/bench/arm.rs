@@ -16,7 +16,7 @@
 //! ramping over 6 cm around the elbow), so without contact the skin would sink into both the
 //! muscle and the ulna.
 
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use glam::{Quat, Vec3};
 use parry3d::math::Pose;
@@ -26,8 +26,11 @@ use rayon::prelude::*;
 
 use super::TubeWorkload;
 use crate::collision::shapes::ellipsoid;
-use crate::collision::{ColliderId, ColliderMesh, CollisionError, ContactConfig, SkinCollision};
-use crate::solver::{Loads, Projection, RelaxConfig, RelaxReport, SolverError, VertexAnchor};
+use crate::collision::{
+    ColliderId, ColliderMesh, CollisionError, ContactConfig, FrameError, FrameSchedule,
+    SkinCollision, predict_from_anchors, relax_frame,
+};
+use crate::solver::{Loads, RelaxConfig, RelaxReport, SolverError, VertexAnchor};
 
 /// Height of the elbow's flexion axis along the tube, m.
 pub const ELBOW_Z_M: f32 = 0.2;
@@ -292,21 +295,12 @@ pub struct ArmRun {
     pub ids: ArmColliders,
     /// The last frame run.
     pub frame: usize,
-}
-
-/// A [`Projection`] that times the one it wraps.
-struct Timed<'a> {
-    inner: &'a mut SkinCollision,
-    spent: Duration,
-}
-
-impl Projection for Timed<'_> {
-    fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool {
-        let t = Instant::now();
-        let moved = self.inner.project(x, order);
-        self.spent += t.elapsed();
-        moved
-    }
+    /// Warm-start each frame from the anchors' motion ([`predict_from_anchors`]).
+    pub predict: bool,
+    /// How a frame spends its iterations over its substeps.
+    pub schedule: FrameSchedule,
+    /// The last frame's relaxation.
+    pub last: Option<RelaxReport>,
 }
 
 /// Why an arm frame failed (never with the bench's own inputs).
@@ -318,6 +312,9 @@ pub enum ArmError {
     /// The solver rejected an input.
     #[error(transparent)]
     Solver(#[from] SolverError),
+    /// A frame's relaxation in contact failed.
+    #[error(transparent)]
+    Frame(#[from] FrameError),
 }
 
 impl ArmRun {
@@ -346,6 +343,9 @@ impl ArmRun {
             contact,
             ids,
             frame,
+            predict: true,
+            schedule: FrameSchedule::DEFAULT,
+            last: None,
         })
     }
 
@@ -365,6 +365,10 @@ impl ArmRun {
         };
         let config = work.relax_config();
         let system = &work.tube.system;
+        // The warm start: each vertex carried by its anchor's motion since the last frame.
+        if self.predict {
+            predict_from_anchors(&mut self.x, &work.anchors(self.frame), &anchors);
+        }
 
         let start = Instant::now();
         self.contact
@@ -372,41 +376,21 @@ impl ArmRun {
             .set_vertices(&muscle)?;
         let refresh_s = start.elapsed().as_secs_f64();
         self.contact.collider_mut(self.ids.ulna)?.set_pose(pose)?;
-
-        let t = Instant::now();
-        self.contact.clear_cache();
-        let plan = self.contact.begin_frame(&mut self.x)?;
-        let mut collision = t.elapsed();
-        let substeps = plan.substeps.max(1);
-        let intermediate = (config.max_iterations / (2 * substeps)).max(1);
-        let last = config
-            .max_iterations
-            .saturating_sub(intermediate * (substeps - 1))
-            .max(1);
-        let mut iterations = 0;
-        let mut converged = false;
-        for s in 0..substeps {
-            let t = Instant::now();
-            self.contact.substep(&mut self.x)?;
-            collision += t.elapsed();
-            let sub_config = RelaxConfig {
-                max_iterations: if s + 1 == substeps {
-                    last
-                } else {
-                    intermediate
-                },
-                ..config
-            };
-            let mut timed = Timed {
-                inner: &mut self.contact,
-                spent: Duration::ZERO,
-            };
-            let report: RelaxReport =
-                system.relax_projected(&mut self.x, &loads, &sub_config, Some(&mut timed))?;
-            collision += timed.spent;
-            iterations += report.iterations;
-            converged = report.converged();
-        }
+        let frame_relax = relax_frame(
+            system,
+            &mut self.contact,
+            &mut self.x,
+            &loads,
+            &config,
+            &self.schedule,
+        )?;
+        let collision = frame_relax.contact_time;
+        let (iterations, substeps, converged) = (
+            frame_relax.report.iterations,
+            frame_relax.substeps,
+            frame_relax.report.converged(),
+        );
+        self.last = Some(frame_relax.report);
         let total_s = start.elapsed().as_secs_f64();
         self.frame = frame;
         let d = self.contact.diagnostics();

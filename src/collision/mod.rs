@@ -4,9 +4,13 @@
 pub mod bench_support;
 mod cache;
 mod collider;
+mod frame;
 pub mod shapes;
 
 pub use collider::{ColliderMesh, SurfaceProjection};
+pub use frame::{
+    FrameError, FrameRelax, FrameSchedule, SUBSTEP_ITERATIONS, predict_from_anchors, relax_frame,
+};
 
 use glam::Vec3;
 use parry3d::bounding_volume::Aabb;

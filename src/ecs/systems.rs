@@ -393,36 +393,18 @@ fn relax_with_contact(
     config: &RelaxConfig,
     contact: &mut SkinContact,
 ) -> Result<RelaxReport, SkinError> {
-    let collision = &mut contact.collision;
-    collision.clear_query_cache();
-    let plan = collision.begin_frame(x)?;
-    let substeps = plan.substeps.max(1);
-    let intermediate = (config.max_iterations / (2 * substeps)).max(1);
-    let last = config
-        .max_iterations
-        .saturating_sub(intermediate * (substeps - 1))
-        .max(1);
-    let mut total: Option<RelaxReport> = None;
-    for s in 0..plan.substeps {
-        collision.substep(x)?;
-        let sub_config = RelaxConfig {
-            max_iterations: if s + 1 == substeps {
-                last
-            } else {
-                intermediate
-            },
-            ..*config
-        };
-        let report = system.relax_projected(x, loads, &sub_config, Some(&mut *collision))?;
-        let iterations = total.as_ref().map_or(0, |t| t.iterations) + report.iterations;
-        total = Some(RelaxReport {
-            iterations,
-            ..report
-        });
-    }
-    match total {
-        Some(report) => Ok(report),
-        None => Ok(system.relax_projected(x, loads, config, Some(collision))?),
+    use crate::collision::{FrameError, FrameSchedule, relax_frame};
+    match relax_frame(
+        system,
+        &mut contact.collision,
+        x,
+        loads,
+        config,
+        &FrameSchedule::DEFAULT,
+    ) {
+        Ok(frame) => Ok(frame.report),
+        Err(FrameError::Collision(e)) => Err(e.into()),
+        Err(FrameError::Solver(e)) => Err(e.into()),
     }
 }
 
