@@ -204,3 +204,13 @@ fn cached_frames_equal_fresh_searches_and_use_certificates() {
     // A cleared cache only certifies the re-checks of vertices pushed in the same pass.
     assert!(certified > 10 * fresh.diagnostics().certified_queries.max(1));
 }
+
+#[test]
+fn slot_hot_fields_share_one_cache_line() {
+    // The bound read by every pass sits in the first 32 bytes; 32-byte alignment and a size
+    // that is a multiple of 32 keep those bytes inside one 64-byte line for every slot of a Vec.
+    assert_eq!(std::mem::align_of::<Slot>(), 32);
+    assert_eq!(std::mem::size_of::<Slot>() % 32, 0);
+    assert!(std::mem::offset_of!(Slot, patch) >= 28);
+    assert_eq!(std::mem::offset_of!(Slot, part), 0);
+}
