@@ -241,14 +241,11 @@ fn ecs_force_scale(tube: &TubeWorkload, tolerance: f32) -> f32 {
         vertex_k[b as usize] += f64::from(k);
     }
     let k_norm = vertex_k.iter().map(|k| k * k).sum::<f64>().sqrt();
-    let x_max = mesh
-        .positions()
-        .iter()
-        .map(|p| p.abs().max_element())
-        .fold(0.0f32, f32::max);
-    let floor =
-        f64::from(f32::EPSILON * x_max) * k_norm / f64::from(tolerance.max(f32::MIN_POSITIVE));
-    primary.max(floor) as f32
+    primary.max(crate::ecs::f32_force_floor_n(
+        mesh.positions(),
+        k_norm,
+        tolerance,
+    )) as f32
 }
 
 /// The colliders of an [`ArmWorkload`] in its [`SkinCollision`].

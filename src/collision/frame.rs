@@ -182,23 +182,7 @@ mod tests {
 
     /// A flat `n` x `n` sheet of side `size` in the z = 0 plane.
     fn sheet(n: u32, size: f32) -> TriMesh {
-        let mut p = Vec::new();
-        for j in 0..n {
-            for i in 0..n {
-                let u = i as f32 / (n - 1) as f32 - 0.5;
-                let v = j as f32 / (n - 1) as f32 - 0.5;
-                p.push(Vec3::new(u * size, v * size, 0.0));
-            }
-        }
-        let mut t = Vec::new();
-        for j in 0..n - 1 {
-            for i in 0..n - 1 {
-                let a = j * n + i;
-                t.push([a, a + 1, a + n + 1]);
-                t.push([a, a + n + 1, a + n]);
-            }
-        }
-        TriMesh::new(p, t).unwrap()
+        crate::mesh::shapes::sheet(n, size)
     }
 
     fn springs(mesh: &TriMesh) -> SpringSystem {

@@ -18,15 +18,7 @@ fn sheet(n: u32, size: f32, z: f32) -> TriMesh {
             p.push(Vec3::new(u * size, v * size, z));
         }
     }
-    let mut t = Vec::new();
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let a = j * n + i;
-            t.push([a, a + 1, a + n + 1]);
-            t.push([a, a + n + 1, a + n]);
-        }
-    }
-    TriMesh::new(p, t).unwrap()
+    TriMesh::new(p, crate::mesh::shapes::grid_triangles(n, n)).unwrap()
 }
 
 /// An open tube along x: `rings` rings of `around` vertices, from `x0` to `x1`.

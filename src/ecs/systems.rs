@@ -148,13 +148,18 @@ pub fn force_scale_n(
         .map(|(v, &k)| (k + anchor_k(v)).powi(2))
         .sum::<f64>()
         .sqrt();
+    primary.max(f32_force_floor_n(positions, k_norm, tolerance)) as f32
+}
+
+/// The smallest force scale a relative `tolerance` can be met at with f32 positions: forces
+/// carry round-off of about `ε·|x|max·|K|` (`k_norm`: the norm of the per-vertex stiffness sums),
+/// so the threshold `tolerance · scale` must stay above it.
+pub(crate) fn f32_force_floor_n(positions: &[Vec3], k_norm: f64, tolerance: f32) -> f64 {
     let x_max = positions
         .iter()
         .map(|p| p.abs().max_element())
         .fold(0.0f32, f32::max);
-    let floor =
-        f64::from(f32::EPSILON * x_max) * k_norm / f64::from(tolerance.max(f32::MIN_POSITIVE));
-    primary.max(floor) as f32
+    f64::from(f32::EPSILON * x_max) * k_norm / f64::from(tolerance.max(f32::MIN_POSITIVE))
 }
 
 /// The query item of [`relax_skins`].

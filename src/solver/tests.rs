@@ -16,15 +16,7 @@ pub(crate) fn sheet(n: u32) -> TriMesh {
             ));
         }
     }
-    let mut t = Vec::new();
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let a = j * n + i;
-            t.push([a, a + 1, a + n + 1]);
-            t.push([a, a + n + 1, a + n]);
-        }
-    }
-    TriMesh::new(p, t).unwrap()
+    TriMesh::new(p, crate::mesh::shapes::grid_triangles(n, n)).unwrap()
 }
 
 fn system(mesh: &TriMesh) -> SpringSystem {
