@@ -2,7 +2,7 @@
 //! collider, the skin stays outside it, the volume holds, contact pushes bones back, and the
 //! `dermis anatomy jaw` export is deterministic and reads back.
 
-use std::process::Command;
+use crate::common::dermis;
 
 use bevy_ecs::prelude::*;
 use dermis::anatomy::dynamics::{AnatomySystem, DynamicsConfig};
@@ -262,17 +262,12 @@ fn export_bytes_are_identical_across_runs_and_thread_counts() {
     let mut bytes = Vec::new();
     for (k, threads) in ["1", "2", "2"].into_iter().enumerate() {
         let out = dir.path().join(format!("jaw{k}.usda"));
-        let status = dermis()
-            .env("RAYON_NUM_THREADS", threads)
-            .args(["anatomy", "jaw", "--frames", "4", "--steps-per-frame", "10"])
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert!(
-            status.status.success(),
-            "{}",
-            String::from_utf8_lossy(&status.stderr)
+        crate::common::run_ok(
+            dermis()
+                .env("RAYON_NUM_THREADS", threads)
+                .args(["anatomy", "jaw", "--frames", "4", "--steps-per-frame", "10"])
+                .arg("--out")
+                .arg(&out),
         );
         bytes.push(std::fs::read(&out).unwrap());
     }
@@ -305,25 +300,16 @@ fn the_export_summary_reports_every_frame() {
     ));
 }
 
-fn dermis() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_dermis"))
-}
-
 #[test]
 fn the_cli_writes_glb_and_obj_that_read_back() {
     let dir = tempfile::tempdir().unwrap();
     let glb = dir.path().join("jaw.glb");
-    let out = dermis()
-        .args(["anatomy", "jaw", "--frames", "3", "--steps-per-frame", "5"])
-        .arg("--out")
-        .arg(&glb)
-        .arg("--json")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = crate::common::run_ok(
+        dermis()
+            .args(["anatomy", "jaw", "--frames", "3", "--steps-per-frame", "5"])
+            .arg("--out")
+            .arg(&glb)
+            .arg("--json"),
     );
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(summary["frames"], 3);
@@ -364,16 +350,11 @@ fn the_cli_writes_glb_and_obj_that_read_back() {
     }
 
     let obj = dir.path().join("seq").join("jaw.obj");
-    let out = dermis()
-        .args(["anatomy", "jaw", "--frames", "2", "--steps-per-frame", "5"])
-        .arg("--out")
-        .arg(&obj)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    crate::common::run_ok(
+        dermis()
+            .args(["anatomy", "jaw", "--frames", "2", "--steps-per-frame", "5"])
+            .arg("--out")
+            .arg(&obj),
     );
     let mut files: Vec<_> = std::fs::read_dir(dir.path().join("seq"))
         .unwrap()

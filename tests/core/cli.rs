@@ -1,15 +1,11 @@
 //! The `equilibrium` and `paper fig4` commands, run as a user would.
 
-use std::process::Command;
+use crate::common::dermis;
 
 use dermis::io::{MeshFile, obj_text, read_mesh};
 use dermis::mesh::shapes::sheet;
 use dermis::solver::{Loads, RelaxConfig, SpringSystem};
 use dermis::stiffness::{Modulus, StiffnessRule};
-
-fn dermis() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_dermis"))
-}
 
 /// A sheet pinned along one side and pulled along the other: the command's answer must be the
 /// library's, the summary must say so, and the output must be a readable mesh.
@@ -42,19 +38,14 @@ fn equilibrium_command_relaxes_and_reports() {
     );
     std::fs::write(dir.path().join("l.json"), loads).unwrap();
     let out = dir.path().join("out.obj");
-    let output = dermis()
-        .args(["equilibrium", "--mesh"])
-        .arg(dir.path().join("m.obj"))
-        .arg("--loads")
-        .arg(dir.path().join("l.json"))
-        .args(["--stiffness", "area-len2", "--e2", "100", "--json", "--out"])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
+    let output = crate::common::run_ok(
+        dermis()
+            .args(["equilibrium", "--mesh"])
+            .arg(dir.path().join("m.obj"))
+            .arg("--loads")
+            .arg(dir.path().join("l.json"))
+            .args(["--stiffness", "area-len2", "--e2", "100", "--json", "--out"])
+            .arg(&out),
     );
     let summary: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
     assert_eq!(summary["rule"], "area-len2");
@@ -128,15 +119,10 @@ fn equilibrium_command_rejects_bad_loads_and_writes_nothing() {
 #[test]
 fn fig4_command_prints_the_documented_json() {
     let dir = tempfile::tempdir().unwrap();
-    let output = dermis()
-        .args(["paper", "fig4", "--seeds", "2", "--json", "--out"])
-        .arg(dir.path())
-        .output()
-        .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
+    let output = crate::common::run_ok(
+        dermis()
+            .args(["paper", "fig4", "--seeds", "2", "--json", "--out"])
+            .arg(dir.path()),
     );
     let v: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
     let runs = v["runs"].as_array().unwrap();

@@ -2,8 +2,8 @@
 //! simulation, output is byte-identical across runs and thread counts, an interrupted export
 //! resumes to the same bytes, and bad input fails cleanly.
 
+use crate::common::dermis;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use bevy_ecs::prelude::*;
 use dermis::ecs::{DermisPlugin, SceneOptions, scene_skin_positions, spawn_scene};
@@ -12,10 +12,6 @@ use glam::Vec3;
 
 fn arm_path() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/arm.glb")
-}
-
-fn dermis() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_dermis"))
 }
 
 fn job(out: &Path, format: Format, frames: u32) -> ExportJob {

@@ -102,23 +102,18 @@ fn at_full_flexion_the_forearm_is_rotated_and_the_biceps_bulges() {
 fn pose_cli_writes_one_object_per_primitive_in_node_order() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("arm.obj");
-    let status = std::process::Command::new(env!("CARGO_BIN_EXE_dermis"))
-        .args([
-            "pose",
-            asset().to_str().unwrap(),
-            "--clip",
-            "elbow_flexion",
-            "--time",
-            "0.5",
-        ])
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        status.status.success(),
-        "{}",
-        String::from_utf8_lossy(&status.stderr)
+    crate::common::run_ok(
+        crate::common::dermis()
+            .args([
+                "pose",
+                asset().to_str().unwrap(),
+                "--clip",
+                "elbow_flexion",
+                "--time",
+                "0.5",
+            ])
+            .arg("--out")
+            .arg(&out),
     );
     let text = std::fs::read_to_string(&out).unwrap();
     let objects: Vec<&str> = text.lines().filter_map(|l| l.strip_prefix("o ")).collect();
@@ -144,7 +139,7 @@ fn pose_cli_writes_one_object_per_primitive_in_node_order() {
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     // A missing clip is an error with a non-zero exit and no output file.
     let bad = dir.path().join("bad.obj");
-    let status = std::process::Command::new(env!("CARGO_BIN_EXE_dermis"))
+    let status = crate::common::dermis()
         .args([
             "pose",
             asset().to_str().unwrap(),
