@@ -802,14 +802,19 @@ impl SkinCollision {
     /// Forgets the contacts the solver held ([`Projection::hold`]): only projections within
     /// one relaxation keep vertices on the surface.
     fn release_held(&mut self) {
+        self.unhold();
+        self.active.clear();
+        self.active_owner.clear();
+    }
+
+    /// Clears the held colliders of every vertex held so far.
+    fn unhold(&mut self) {
         for &v in &self.held_vertices {
             if let Some(s) = self.states.get_mut(v as usize) {
                 s.held = [NONE; TOUCHES];
             }
         }
         self.held_vertices.clear();
-        self.active.clear();
-        self.active_owner.clear();
     }
 
     /// One contact pass over `x` (caller's order), parallel over fixed chunks of vertices.
@@ -887,8 +892,6 @@ impl Projection for SkinCollision {
         self.scratch = xc;
         let moved = counters.moved > 0;
         self.record(counters, unresolved);
-        self.active.clear();
-        self.active_owner.clear();
         let stick = self.config.friction >= 1.0;
         for (i, &o) in order.iter().enumerate() {
             let state = &self.states[o as usize];
@@ -915,12 +918,7 @@ impl Projection for SkinCollision {
     /// Held contacts are kept at exactly the thickness by the next projection: a vertex that
     /// drifted outward (a tangent step over a convex surface) is put back on it.
     fn hold(&mut self, held: &[bool]) {
-        for &v in &self.held_vertices {
-            if let Some(s) = self.states.get_mut(v as usize) {
-                s.held = [NONE; TOUCHES];
-            }
-        }
-        self.held_vertices.clear();
+        self.unhold();
         for (&(v, c), _) in self.active_owner.iter().zip(held).filter(|(_, h)| **h) {
             let Some(state) = self.states.get_mut(v as usize) else {
                 continue;
