@@ -121,6 +121,19 @@ pub fn relax_frame(
     config: &RelaxConfig,
     schedule: &FrameSchedule,
 ) -> Result<FrameRelax, FrameError> {
+    // One job on the rayon pool for the whole frame (see `SpringSystem::relax_projected`).
+    rayon::scope(|_| frame_on_pool(system, collision, x, loads, config, schedule))
+}
+
+/// [`relax_frame`], on a worker of the rayon pool.
+fn frame_on_pool(
+    system: &SpringSystem,
+    collision: &mut SkinCollision,
+    x: &mut [Vec3],
+    loads: &Loads<'_>,
+    config: &RelaxConfig,
+    schedule: &FrameSchedule,
+) -> Result<FrameRelax, FrameError> {
     let t = Instant::now();
     collision.clear_query_cache();
     let plan = collision.begin_frame(x)?;

@@ -114,7 +114,10 @@ pub struct ActiveContact {
 /// whose net force pulls it away is released. The default methods report no contacts: the
 /// projection then only moves vertices, and a solve against it can stop only on its budget or
 /// a stall.
-pub trait Projection {
+///
+/// The solve runs on the rayon pool's worker threads (see
+/// [`SpringSystem::relax_projected`]), so a projection is `Send`.
+pub trait Projection: Send {
     /// Projects `x` onto the admissible set.
     fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool;
 
@@ -468,6 +471,21 @@ impl SpringSystem {
     /// their normal force leaves the residual and the search direction, so the solve converges
     /// on the contact set (see the module documentation).
     pub fn relax_projected(
+        &self,
+        x: &mut [Vec3],
+        loads: &Loads<'_>,
+        config: &RelaxConfig,
+        projection: Option<&mut dyn Projection>,
+    ) -> Result<RelaxReport, SolverError> {
+        // The whole solve runs as one job on the rayon pool: each iteration has several
+        // parallel loops, and entered from outside the pool every one of them would wait for a
+        // worker to wake up and hand the result back (futex round trips that cost more than a
+        // 10k-vertex loop). Inside a worker, `scope` runs the closure in place.
+        rayon::scope(|_| self.relax_on_pool(x, loads, config, projection))
+    }
+
+    /// [`relax_projected`](Self::relax_projected), on a worker of the rayon pool.
+    fn relax_on_pool(
         &self,
         x: &mut [Vec3],
         loads: &Loads<'_>,
