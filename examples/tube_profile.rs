@@ -2,6 +2,7 @@
 use std::time::Instant;
 
 use dermis::bench::arm::{ArmRun, ArmWorkload};
+use dermis::solver::Projection;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -10,6 +11,22 @@ fn main() {
     let work = ArmWorkload::new("tube", n, (126, 200), dermis::bench::arm::CLIP_FRAMES);
     let mut run = ArmRun::new(&work, 12, 500).unwrap();
     for _ in 0..frames {
+        // The frame plan on its own (on a copy), to split the contact time.
+        let mut c = run.contact.clone();
+        let mut xp = run.x.clone();
+        let f = run.frame + 1;
+        c.collider_mut(run.ids.muscle)
+            .unwrap()
+            .set_vertices(&work.muscle_vertices(f))
+            .unwrap();
+        c.collider_mut(run.ids.ulna)
+            .unwrap()
+            .set_pose(work.forearm_pose(f))
+            .unwrap();
+        c.clear_query_cache();
+        let tp = Instant::now();
+        rayon::scope(|_| c.begin_frame(&mut xp).unwrap());
+        print!("plan {:.2} ms | ", tp.elapsed().as_secs_f64() * 1e3);
         let t0 = Instant::now();
         let t = run.step(&work).unwrap();
         let d = run.contact.diagnostics().clone();
@@ -29,4 +46,47 @@ fn main() {
             d.moved
         );
     }
+    // One projection pass on the last frame's state, in the solver's order, repeated.
+    let order = work.tube.system.order().to_vec();
+    let mut x: Vec<_> = order.iter().map(|&o| run.x[o as usize]).collect();
+    let mut contact = run.contact.clone();
+    contact.project(&mut x, &order);
+    let reps = 200;
+    let t0 = Instant::now();
+    rayon::scope(|_| {
+        for _ in 0..reps {
+            contact.project(&mut x, &order);
+        }
+    });
+    println!(
+        "steady: {:.1} us",
+        t0.elapsed().as_secs_f64() * 1e6 / reps as f64
+    );
+    let mut junk = vec![1.0f32; 1 << 20];
+    let mut spent = 0.0;
+    rayon::scope(|_| {
+        for r in 0..reps {
+            for (i, j) in junk.iter_mut().enumerate() {
+                *j += (i + r) as f32;
+            }
+            for p in x.iter_mut() {
+                p.x += 1e-7;
+            }
+            let t = Instant::now();
+            contact.project(&mut x, &order);
+            spent += t.elapsed().as_secs_f64();
+        }
+    });
+    println!(
+        "moving + cache thrashed: {:.1} us ({})",
+        spent * 1e6 / reps as f64,
+        junk[7]
+    );
+    let t0 = Instant::now();
+    println!(
+        "projection pass: {:.1} us ({} vertices, {} active contacts)",
+        t0.elapsed().as_secs_f64() * 1e6 / reps as f64,
+        x.len(),
+        contact.active_contacts().len()
+    );
 }

@@ -227,8 +227,13 @@ pub struct ContactDiagnostics {
     /// Vertex–collider pairs skipped because the vertex lies outside the collider's bounding box
     /// inflated by the thickness.
     pub skipped_aabb: u64,
-    /// Vertex–collider pairs skipped because the cached distance bound proves no contact.
+    /// Vertex–collider pairs skipped because the cached distance bound proves no contact
+    /// (counting every collider of a vertex skipped whole).
     pub skipped_bound: u64,
+    /// Vertices skipped whole, summed over passes: their motion since they were last resolved,
+    /// plus every collider's travel, stayed within the distance that proves them outside every
+    /// contact band, so the pass did not read their per-collider state at all.
+    pub skipped_vertices: u64,
     /// Vertices stopped by the swept test (a step that would have crossed a collider).
     pub swept_hits: u64,
     /// Substeps used by the last [`SkinCollision::begin_frame`].
@@ -287,13 +292,52 @@ impl Touch {
 /// Contacts per vertex reported to the solver (two colliders meeting in a crease).
 const TOUCHES: usize = 2;
 
+/// How far a vertex may go before it can come near a collider: the hot part of the per-vertex
+/// state, read by every pass for every vertex (32 bytes, two per cache line), so a vertex far
+/// from every collider costs one distance, one compare and the store of its position.
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(32))]
+struct Reach {
+    /// Where the vertex was resolved last (NaN: never).
+    at: Vec3,
+    /// How far the vertex may move from `at`, plus the colliders' travel since `travel_at`,
+    /// before it can come within its contact band of any collider, m, with the rounding
+    /// allowance taken off; `-∞` when it touched something (then every pass resolves it).
+    reserve: f32,
+    /// The colliders' summed travel ([`ColliderMesh::travel_m`]) when the vertex was resolved,
+    /// m.
+    travel_at: f64,
+    /// Lower bound of the distance from `at` to every collider surface then, m (0: none).
+    safe: f32,
+}
+
+impl Reach {
+    const NEW: Self = Self {
+        at: Vec3::NAN,
+        reserve: f32::NEG_INFINITY,
+        travel_at: 0.0,
+        safe: 0.0,
+    };
+
+    /// Whether a vertex now at `p`, the colliders' summed travel now `travel`, is provably
+    /// outside every contact band (what resolving it would find, without the slots).
+    #[inline]
+    fn skips(&self, p: Vec3, travel: f64) -> bool {
+        let moved = p.distance(self.at) as f64 + (travel - self.travel_at);
+        moved * (1.0 + 1e-5) <= self.reserve as f64
+    }
+
+    /// Lower bound of the distance from `p` to every collider surface, the colliders' summed
+    /// travel now `travel` (negative: none known).
+    #[inline]
+    fn clearance(&self, p: Vec3, travel: f64) -> f64 {
+        self.safe as f64 - p.distance(self.at) as f64 - (travel - self.travel_at)
+    }
+}
+
 /// Per-vertex state.
 #[derive(Debug, Clone, Copy)]
 struct VertexState {
-    /// Position after the last pass (NaN: none yet).
-    last: Vec3,
-    /// How far `last` may move before it can reach any collider surface, m.
-    safe: f32,
     /// The surface point touched in the last pass.
     contact: Contact,
     /// The surface point touched at the start of the frame (friction).
@@ -307,8 +351,6 @@ struct VertexState {
 
 impl VertexState {
     const NEW: Self = Self {
-        last: Vec3::NAN,
-        safe: 0.0,
         contact: Contact::NONE,
         anchor: Contact::NONE,
         touches: [Touch::NONE; TOUCHES],
@@ -325,7 +367,20 @@ struct Counters {
     certified: u64,
     skipped_aabb: u64,
     skipped_bound: u64,
+    skipped_vertices: u64,
     swept_hits: u64,
+}
+
+/// What one chunk of a pass did.
+#[derive(Debug, Default)]
+struct ChunkPass {
+    counters: Counters,
+    /// Vertices still too close after the last round (pass order, increasing).
+    unresolved: Vec<u32>,
+    /// Vertices the pass moved (increasing).
+    moved: Vec<u32>,
+    /// Vertices touching a collider after the pass (increasing).
+    touching: Vec<u32>,
 }
 
 impl Counters {
@@ -337,6 +392,7 @@ impl Counters {
         self.certified += o.certified;
         self.skipped_aabb += o.skipped_aabb;
         self.skipped_bound += o.skipped_bound;
+        self.skipped_vertices += o.skipped_vertices;
         self.swept_hits += o.swept_hits;
     }
 }
@@ -370,6 +426,9 @@ pub struct SkinCollision {
     config: ContactConfig,
     colliders: Vec<ColliderMesh>,
     thickness: Vec<f32>,
+    reach: Vec<Reach>,
+    /// Each vertex's position after the last pass, resolved or skipped (NaN: none yet).
+    last: Vec<Vec3>,
     states: Vec<VertexState>,
     /// `vertex_count × colliders` slots, vertex-major.
     slots: Vec<Slot>,
@@ -382,6 +441,10 @@ pub struct SkinCollision {
     active_owner: Vec<(u32, u32)>,
     /// Caller's vertices with a held contact.
     held_vertices: Vec<u32>,
+    /// Inverse of `rank_of`, the solver's order of the last projection: `rank[o]` is the
+    /// internal index of caller's vertex `o`.
+    rank: Vec<u32>,
+    rank_of: Vec<u32>,
 }
 
 /// The substeps of the frame in progress.
@@ -411,6 +474,10 @@ impl SkinCollision {
             config,
             colliders: Vec::new(),
             thickness: vec![config.thickness_m; vertex_count],
+            reach: vec![Reach::NEW; vertex_count],
+            last: vec![Vec3::NAN; vertex_count],
+            rank: Vec::new(),
+            rank_of: Vec::new(),
             states: vec![VertexState::NEW; vertex_count],
             slots: Vec::new(),
             scratch: Vec::new(),
@@ -441,6 +508,10 @@ impl SkinCollision {
             });
         }
         self.thickness.copy_from_slice(thickness_m);
+        // The contact bands changed: no vertex may skip a pass on its old reserve.
+        for r in &mut self.reach {
+            r.reserve = f32::NEG_INFINITY;
+        }
         Ok(())
     }
 
@@ -496,6 +567,8 @@ impl SkinCollision {
     pub fn clear_cache(&mut self) {
         let n = self.thickness.len();
         self.states = vec![VertexState::NEW; n];
+        self.reach = vec![Reach::NEW; n];
+        self.last = vec![Vec3::NAN; n];
         self.slots = vec![Slot::NEW; n * self.colliders.len()];
     }
 
@@ -510,6 +583,8 @@ impl SkinCollision {
                 ..VertexState::NEW
             };
         }
+        self.reach.fill(Reach::NEW);
+        self.last.fill(Vec3::NAN);
         self.slots = vec![Slot::NEW; self.states.len() * self.colliders.len()];
         self.held_vertices.clear();
         self.active.clear();
@@ -556,12 +631,14 @@ impl SkinCollision {
                 }
             }
         }
-        for (s, a) in self.states.iter_mut().zip(anchors) {
+        for ((s, r), a) in self.states.iter_mut().zip(&mut self.reach).zip(anchors) {
             s.contact = a.map_or(Contact::NONE, |a| Contact {
                 collider: a.collider,
                 part: a.part,
                 coords: a.coords,
             });
+            // The next pass must resolve the vertex to replace the contact if it is gone.
+            r.reserve = f32::NEG_INFINITY;
         }
         Ok(())
     }
@@ -610,11 +687,11 @@ impl SkinCollision {
         if substeps > 1 {
             increments = x
                 .iter_mut()
-                .zip(&self.states)
-                .map(|(p, s)| {
+                .zip(&self.last)
+                .map(|(p, last)| {
                     let target = *p;
-                    if s.last.is_finite() {
-                        *p = s.last;
+                    if last.is_finite() {
+                        *p = *last;
                     }
                     (target - *p) / substeps as f32
                 })
@@ -668,50 +745,64 @@ impl SkinCollision {
             })
             .collect();
         let cfg = &self.config;
+        // The largest motion, above `worst`, of a pair of vertex `i` (now at `p1`) and a
+        // collider it can reach; `worst` when there is none.
+        let vertex = |p1: Vec3, last: Vec3, h: f32, mut worst: f32| {
+            let p0 = if last.is_finite() { last } else { p1 };
+            let v = p0.distance(p1);
+            let band = h * (1.0 + cfg.contact_band);
+            for (col, m) in self.colliders.iter().zip(&motions) {
+                if m.global == 0.0 && v == 0.0 {
+                    continue;
+                }
+                let speed = m.shift + m.angle * (p1.distance(m.pose.translation) + v + m.shift) + v;
+                let motion = (speed + m.deform).min(m.global + v);
+                if motion <= worst {
+                    continue;
+                }
+                // Rounding of the transforms and queries.
+                let margin = band + m.deform + 1e-4 * (speed + band) + 1e-6;
+                let distance = |t: f32| {
+                    let pose = if t >= 1.0 {
+                        m.pose
+                    } else {
+                        m.prev.lerp(&m.pose, t)
+                    };
+                    let local = pose.inverse_transform_point(p0.lerp(p1, t));
+                    let d = aabb_distance(col.local_aabb(), local);
+                    if d >= margin + 0.5 * speed {
+                        d
+                    } else {
+                        col.project_local(local, NONE).signed_distance
+                    }
+                };
+                if reaches(&distance, speed, margin) {
+                    worst = motion;
+                }
+            }
+            worst
+        };
+        // The result is a maximum, whatever order the pairs are visited in, and pairs that
+        // move less than the largest reaching one found so far need no query. Vertices that
+        // touched a collider last (their friction anchors) most likely reach it again: visiting
+        // them first lets the whole skin skip the queries of a deforming collider, whose motion
+        // bound is the same for every vertex.
+        let touched = self
+            .states
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.contact.collider != NONE)
+            .fold(0.0f32, |worst, (i, _)| {
+                vertex(x[i], self.last[i], self.thickness[i], worst)
+            });
         let per_chunk: Vec<f32> = x
             .par_chunks(CHUNK)
-            .zip(self.states.par_chunks(CHUNK))
+            .zip(self.last.par_chunks(CHUNK))
             .zip(self.thickness.par_chunks(CHUNK))
-            .map(|((xs, states), hs)| {
-                let mut worst = 0.0f32;
-                for ((&p1, state), &h) in xs.iter().zip(states).zip(hs) {
-                    let p0 = if state.last.is_finite() {
-                        state.last
-                    } else {
-                        p1
-                    };
-                    let v = p0.distance(p1);
-                    let band = h * (1.0 + cfg.contact_band);
-                    for (col, m) in self.colliders.iter().zip(&motions) {
-                        if m.global == 0.0 && v == 0.0 {
-                            continue;
-                        }
-                        let speed =
-                            m.shift + m.angle * (p1.distance(m.pose.translation) + v + m.shift) + v;
-                        let motion = (speed + m.deform).min(m.global + v);
-                        if motion <= worst {
-                            continue;
-                        }
-                        // Rounding of the transforms and queries.
-                        let margin = band + m.deform + 1e-4 * (speed + band) + 1e-6;
-                        let distance = |t: f32| {
-                            let pose = if t >= 1.0 {
-                                m.pose
-                            } else {
-                                m.prev.lerp(&m.pose, t)
-                            };
-                            let local = pose.inverse_transform_point(p0.lerp(p1, t));
-                            let d = aabb_distance(col.local_aabb(), local);
-                            if d >= margin + 0.5 * speed {
-                                d
-                            } else {
-                                col.project_local(local, NONE).signed_distance
-                            }
-                        };
-                        if reaches(&distance, speed, margin) {
-                            worst = motion;
-                        }
-                    }
+            .map(|((xs, lasts), hs)| {
+                let mut worst = touched;
+                for ((&p1, &last), &h) in xs.iter().zip(lasts).zip(hs) {
+                    worst = vertex(p1, last, h, worst);
                 }
                 worst
             })
@@ -745,8 +836,8 @@ impl SkinCollision {
                 *p += *d;
             }
         }
-        let (counters, unresolved) = self.pass(x, false);
-        self.record(counters, unresolved);
+        let done = self.pass(x, false);
+        self.record(done.counters, done.unresolved);
         let remaining = plan.substeps - plan.next;
         if remaining == 0 {
             for c in &mut self.colliders {
@@ -779,9 +870,9 @@ impl SkinCollision {
                 expected: self.vertex_count(),
             });
         }
-        let (counters, unresolved) = self.pass(x, false);
-        let moved = counters.moved > 0;
-        self.record(counters, unresolved);
+        let done = self.pass(x, false);
+        let moved = done.counters.moved > 0;
+        self.record(done.counters, done.unresolved);
         Ok(moved)
     }
 
@@ -796,6 +887,7 @@ impl SkinCollision {
         d.certified_queries += c.certified;
         d.skipped_aabb += c.skipped_aabb;
         d.skipped_bound += c.skipped_bound;
+        d.skipped_vertices += c.skipped_vertices;
         d.swept_hits += c.swept_hits;
     }
 
@@ -819,48 +911,86 @@ impl SkinCollision {
 
     /// One contact pass over `x` (caller's order), parallel over fixed chunks of vertices.
     /// Passes other than projections (`swept == false`) first release the held contacts.
-    fn pass(&mut self, x: &mut [Vec3], swept: bool) -> (Counters, Vec<u32>) {
+    fn pass(&mut self, x: &mut [Vec3], swept: bool) -> ChunkPass {
         if !swept {
             self.release_held();
         }
         let nc = self.colliders.len();
         if nc == 0 || x.is_empty() {
-            return (Counters::default(), Vec::new());
+            return ChunkPass::default();
         }
         let travel: Vec<f64> = self.colliders.iter().map(ColliderMesh::travel_m).collect();
         let ctx = Ctx {
             colliders: &self.colliders,
             travel: &travel,
+            travel_sum: travel.iter().sum(),
             config: &self.config,
             swept,
         };
-        let per_chunk: Vec<(Counters, Vec<u32>)> = x
+        let per_chunk: Vec<ChunkPass> = x
             .par_chunks_mut(CHUNK)
+            .zip(self.reach.par_chunks_mut(CHUNK))
+            .zip(self.last.par_chunks_mut(CHUNK))
             .zip(self.states.par_chunks_mut(CHUNK))
             .zip(self.slots.par_chunks_mut(CHUNK * nc))
             .zip(self.thickness.par_chunks(CHUNK))
             .enumerate()
-            .map(|(chunk, (((xs, states), slots), hs))| {
-                let mut counters = Counters::default();
-                let mut unresolved = Vec::new();
-                for (o, (p, state)) in xs.iter_mut().zip(states.iter_mut()).enumerate() {
+            .map(|(chunk, (((((xs, reach), last), states), slots), hs))| {
+                let mut done = ChunkPass::default();
+                let mut skipped = 0u64;
+                for (o, (((p, reach), last), state)) in xs
+                    .iter_mut()
+                    .zip(reach.iter_mut())
+                    .zip(last.iter_mut())
+                    .zip(states)
+                    .enumerate()
+                {
+                    if reach.skips(*p, ctx.travel_sum) {
+                        // Provably outside every contact band: what resolving would find,
+                        // without reading the collider slots.
+                        *last = *p;
+                        skipped += 1;
+                        continue;
+                    }
                     let slots = &mut slots[o * nc..(o + 1) * nc];
-                    let (moved, bad) = ctx.resolve(p, hs[o], state, slots, &mut counters);
-                    counters.moved += moved as u64;
+                    let (moved, bad) =
+                        ctx.resolve(p, hs[o], (reach, last), state, slots, &mut done.counters);
+                    let v = (chunk * CHUNK + o) as u32;
+                    if moved {
+                        done.counters.moved += 1;
+                        done.moved.push(v);
+                    }
                     if bad {
-                        unresolved.push((chunk * CHUNK + o) as u32);
+                        done.unresolved.push(v);
+                    }
+                    if state.touches[0].collider != NONE {
+                        done.touching.push(v);
                     }
                 }
-                (counters, unresolved)
+                done.counters.skipped_bound += skipped * nc as u64;
+                done.counters.skipped_vertices += skipped;
+                done
             })
             .collect();
-        let mut total = Counters::default();
-        let mut unresolved = Vec::new();
-        for (c, u) in per_chunk {
-            total.add(&c);
-            unresolved.extend(u);
+        let mut total = ChunkPass::default();
+        for c in per_chunk {
+            total.counters.add(&c.counters);
+            total.unresolved.extend(c.unresolved);
+            total.moved.extend(c.moved);
+            total.touching.extend(c.touching);
         }
-        (total, unresolved)
+        total
+    }
+
+    /// Makes `rank` the inverse of `order` (rebuilt only when the order changed).
+    fn rank_for(&mut self, order: &[u32]) {
+        if self.rank_of != order {
+            self.rank_of = order.to_vec();
+            self.rank = vec![0; order.len()];
+            for (i, &o) in order.iter().enumerate() {
+                self.rank[o as usize] = i as u32;
+            }
+        }
     }
 }
 
@@ -885,19 +1015,28 @@ impl Projection for SkinCollision {
             };
             *slot = x[i];
         }
-        let (counters, unresolved) = self.pass(&mut xc, true);
-        x.par_iter_mut()
-            .zip(order.par_iter())
-            .for_each(|(x, &o)| *x = xc[o as usize]);
+        let done = self.pass(&mut xc, true);
+        self.rank_for(order);
+        for &o in &done.moved {
+            x[self.rank[o as usize] as usize] = xc[o as usize];
+        }
         self.scratch = xc;
-        let moved = counters.moved > 0;
-        self.record(counters, unresolved);
+        let moved = done.counters.moved > 0;
+        // The touching vertices in the solver's order, each with its contacts in resolution
+        // order.
+        let mut touching: Vec<(u32, u32)> = done
+            .touching
+            .iter()
+            .map(|&o| (self.rank[o as usize], o))
+            .collect();
+        touching.sort_unstable();
+        self.record(done.counters, done.unresolved);
         let stick = self.config.friction >= 1.0;
-        for (i, &o) in order.iter().enumerate() {
+        for (i, o) in touching {
             let state = &self.states[o as usize];
             for t in state.touches.iter().take_while(|t| t.collider != NONE) {
                 self.active.push(ActiveContact {
-                    vertex: i as u32,
+                    vertex: i,
                     normal: t.normal,
                     stick: stick && state.anchor.collider == t.collider,
                 });
@@ -934,6 +1073,9 @@ impl Projection for SkinCollision {
 struct Ctx<'a> {
     colliders: &'a [ColliderMesh],
     travel: &'a [f64],
+    /// `travel` summed: a bound on how far any collider surface moved since a vertex's last
+    /// pass, with the sum at that pass ([`Reach::travel_at`]).
+    travel_sum: f64,
     config: &'a ContactConfig,
     swept: bool,
 }
@@ -944,6 +1086,7 @@ impl Ctx<'_> {
         &self,
         p: &mut Vec3,
         h: f32,
+        (reach, last): (&mut Reach, &mut Vec3),
         state: &mut VertexState,
         slots: &mut [Slot],
         counters: &mut Counters,
@@ -952,13 +1095,15 @@ impl Ctx<'_> {
         let cfg = self.config;
         let tol = cfg.tolerance_m;
         let band = h * (1.0 + cfg.contact_band);
-        if self.swept && state.last.is_finite() && state.safe > 0.0 {
-            let delta = *p - state.last;
-            if delta.length() > state.safe {
+        if self.swept && last.is_finite() && reach.safe > 0.0 {
+            let delta = *p - *last;
+            // A step shorter than the distance from its start to every surface cannot cross
+            // one (a looser bound only costs casts that find nothing).
+            if delta.length() as f64 > reach.clearance(*last, self.travel_sum) {
                 let mut best: Option<(f32, Vec3, usize)> = None;
                 for (c, col) in self.colliders.iter().enumerate() {
                     let pose = col.pose();
-                    let from = pose.inverse_transform_point(state.last);
+                    let from = pose.inverse_transform_point(*last);
                     let d = pose.inverse_transform_vector(delta);
                     if let Some((hit, normal)) = col.cast_local_segment(from, d) {
                         let t = hit.distance_squared(from);
@@ -1063,7 +1208,7 @@ impl Ctx<'_> {
         }
         state.contact = touching;
         counters.contacts += (touching.collider != NONE) as u64;
-        state.safe = if unresolved {
+        let safe = if unresolved {
             0.0
         } else {
             slots
@@ -1071,9 +1216,23 @@ impl Ctx<'_> {
                 .zip(self.travel)
                 .map(|(s, &t)| s.lower_bound(*p, t))
                 .fold(f64::INFINITY, f64::min)
-                .max(0.0) as f32
+                .max(0.0)
         };
-        state.last = *p;
+        // A vertex that touched something is resolved again by the next pass (its contact and
+        // touches must be recomputed even if it leaves). The rounding allowance covers the f32
+        // distances of the skip test and the bound's own rounding to f32.
+        let reserve = safe - band as f64 - 1e-5 * (p.abs().max_element() as f64 + safe) - 1e-9;
+        *reach = Reach {
+            at: *p,
+            reserve: if touching.collider == NONE && !unresolved && reserve > 0.0 {
+                reserve as f32
+            } else {
+                f32::NEG_INFINITY
+            },
+            travel_at: self.travel_sum,
+            safe: safe as f32,
+        };
+        *last = *p;
         (*p != start, unresolved)
     }
 }

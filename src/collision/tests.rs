@@ -262,6 +262,13 @@ fn cached_queries_equal_naive_project_point() {
             cached.project(&mut xa, &order);
             naive.clear_cache();
             naive.project(&mut xb, &order);
+            // Vertices skipped whole on their reserve touch exactly what a full query finds.
+            let (ca, cb) = (cached.active_contacts(), naive.active_contacts());
+            assert_eq!(ca.len(), cb.len(), "frame {frame} pass {k}");
+            for (a, b) in ca.iter().zip(cb) {
+                assert_eq!(a.vertex, b.vertex);
+                assert!(a.normal.distance(b.normal) < 1e-5);
+            }
         }
         let max = xa
             .iter()
@@ -272,7 +279,7 @@ fn cached_queries_equal_naive_project_point() {
     }
     let d = cached.diagnostics();
     assert!(
-        d.skipped_bound + d.skipped_aabb > 0 && d.cache_hits > 0,
+        d.skipped_bound + d.skipped_aabb > 0 && d.cache_hits > 0 && d.skipped_vertices > 0,
         "{d:?}"
     );
 }
