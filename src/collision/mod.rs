@@ -1240,8 +1240,17 @@ impl Ctx<'_> {
 /// Whether a path along which `distance(t)` (`t ∈ [0, 1]`) is 1-Lipschitz at `speed` can come
 /// below `margin`: bisection with exact ends, up to 64 pieces (`true` when not disproved).
 fn reaches(distance: &impl Fn(f32) -> f32, speed: f32, margin: f32) -> bool {
-    let mut stack = vec![(0.0f32, distance(0.0), 1.0f32, distance(1.0))];
-    while let Some((ta, sa, tb, sb)) = stack.pop() {
+    if speed == 0.0 {
+        // A still path (a deforming collider's own motion is in the margin): one query.
+        return distance(1.0) < margin;
+    }
+    // Depth-first over halvings down to 1/64: at most one pending piece per level (no heap).
+    let mut stack = [(0.0f32, 0.0f32, 0.0f32, 0.0f32); 8];
+    stack[0] = (0.0, distance(0.0), 1.0, distance(1.0));
+    let mut len = 1;
+    while len > 0 {
+        len -= 1;
+        let (ta, sa, tb, sb) = stack[len];
         if sa.min(sb) < margin {
             return true;
         }
@@ -1254,8 +1263,9 @@ fn reaches(distance: &impl Fn(f32) -> f32, speed: f32, margin: f32) -> bool {
         }
         let tm = 0.5 * (ta + tb);
         let sm = distance(tm);
-        stack.push((tm, sm, tb, sb));
-        stack.push((ta, sa, tm, sm));
+        stack[len] = (tm, sm, tb, sb);
+        stack[len + 1] = (ta, sa, tm, sm);
+        len += 2;
     }
     false
 }
