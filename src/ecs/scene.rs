@@ -1063,6 +1063,15 @@ pub fn restore_state(world: &mut World, state: &SceneState) -> Result<(), SceneE
             }
         }
     }
+    // The captured frame's anchors are what its relaxation solved for: the next frame's warm
+    // start moves the skin by the anchors' motion from there, as the uninterrupted run does.
+    for (anchors, mut solved) in world
+        .query::<(&SkinAnchors, &mut SolvedAnchors)>()
+        .iter_mut(world)
+    {
+        solved.0.clear();
+        solved.0.extend_from_slice(anchors);
+    }
     Ok(())
 }
 

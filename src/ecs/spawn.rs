@@ -23,6 +23,7 @@ pub struct SkinBundle {
     positions: SkinPositions,
     last_valid: LastValidPositions,
     anchors: SkinAnchors,
+    solved_anchors: SolvedAnchors,
     loads: ExternalLoads,
     diagnostics: RelaxDiagnostics,
 }
@@ -204,6 +205,9 @@ impl SkinBuilder {
             springs: SkinSprings::default(),
             last_valid: LastValidPositions(positions.clone()),
             positions: SkinPositions(positions),
+            // The skin starts where its anchors put it: the first frame's warm start carries it
+            // by their motion from here.
+            solved_anchors: SolvedAnchors(anchors.clone()),
             anchors: SkinAnchors(anchors),
             loads: ExternalLoads {
                 forces_n: self.forces,

@@ -174,6 +174,7 @@ type RelaxItem<'a> = (
     Option<Ref<'a, RelaxSettings>>,
     Mut<'a, RelaxDiagnostics>,
     Option<Mut<'a, SkinContact>>,
+    Option<Mut<'a, SolvedAnchors>>,
 );
 
 /// Relaxes every skin to equilibrium under its anchors and loads, warm-started from its current
@@ -206,6 +207,7 @@ pub fn relax_skins(
         Option<Ref<RelaxSettings>>,
         &mut RelaxDiagnostics,
         Option<&mut SkinContact>,
+        Option<&mut SolvedAnchors>,
     )>,
     mut quarantined: MessageWriter<SkinQuarantined>,
 ) {
@@ -243,6 +245,7 @@ fn relax_one(
         settings,
         diagnostics,
         contact,
+        solved_anchors,
     ) = item;
     let diagnostics = &mut **diagnostics;
     diagnostics.frames += 1;
@@ -337,6 +340,17 @@ fn relax_one(
             .map(|a| &a.0[..]),
     };
     let x = &mut positions.bypass_change_detection().0;
+    // Warm start: the skin carried by its anchors' motion since the last solve.
+    let mut predicted = false;
+    if let (Some(solved), Some(anchors)) = (solved_anchors.as_mut(), solver_loads.anchors) {
+        let solved = solved.bypass_change_detection();
+        if solved.0.len() == anchors.len() && solved.0 != anchors {
+            crate::collision::predict_from_anchors(x, &solved.0, anchors);
+            predicted = true;
+        }
+        solved.0.clear();
+        solved.0.extend_from_slice(anchors);
+    }
     let result = match contact.as_mut() {
         None => system
             .relax(x, &solver_loads, &config)
@@ -362,7 +376,7 @@ fn relax_one(
                 diagnostics.stop = Some(report.stop);
                 diagnostics.solve_error = None;
             }
-            if report.iterations > 0 || !diagnostics.quarantined.is_empty() {
+            if report.iterations > 0 || predicted || !diagnostics.quarantined.is_empty() {
                 positions.set_changed();
             }
         }

@@ -2,7 +2,7 @@
 //! closed form) says it should.
 
 use dermis::ecs::*;
-use dermis::solver::{Loads, RelaxConfig, SpringSystem};
+use dermis::solver::{Loads, RelaxConfig, SpringSystem, StopReason};
 use dermis::stiffness::StiffnessRule;
 use glam::Vec3;
 
@@ -144,4 +144,53 @@ fn per_entity_relax_settings_override_the_global_config() {
     assert_eq!(capped.stop, Some(dermis::solver::StopReason::Budget));
     assert!(free.iterations > 3, "{free:?}");
     assert_ne!(free.stop, Some(dermis::solver::StopReason::Budget));
+}
+
+#[test]
+fn the_anchors_motion_warm_starts_the_next_frame() {
+    // Translation invariance: an equilibrium under anchors moved by d is the old one moved by d.
+    // Each frame starts from the skin carried by its anchors' motion since the last solve (since
+    // the spawn for the first), so a rigid translation of the anchors costs no iteration at all,
+    // where a start from last frame's positions needs many.
+    const D: Vec3 = Vec3::new(0.01, -0.004, 0.02);
+    let (mut world, mut schedule) = world_with(|p, f| p + f as f32 * D);
+    let skin = SkinBuilder::new(sheet(10), SkinMaterial::default())
+        .with_stiffness_rule(StiffnessRule::poisson(0.3))
+        .with_rest_anchors(K_NORMAL, K_TANGENT)
+        .spawn(&mut world)
+        .unwrap();
+    let rest = sheet(10);
+    let mut stale = rest.positions().to_vec();
+    for frame in 1..6 {
+        let before = skin_positions(&world, skin).unwrap().to_vec();
+        schedule.run(&mut world);
+        let diag = world.get::<RelaxDiagnostics>(skin).unwrap();
+        assert_eq!(diag.iterations, 0, "frame {frame}: {diag:?}");
+        assert_eq!(diag.stop, Some(StopReason::Converged));
+        for (x, b) in skin_positions(&world, skin).unwrap().iter().zip(&before) {
+            assert!(
+                x.distance(*b + D) < 1e-6,
+                "frame {frame}: {x} vs {}",
+                *b + D
+            );
+        }
+        // The same frame started from last frame's positions: the pure solver needs iterations.
+        let system = world
+            .get::<SkinSprings>(skin)
+            .unwrap()
+            .system()
+            .unwrap()
+            .clone();
+        let anchors = world.get::<SkinAnchors>(skin).unwrap().to_vec();
+        let loads = Loads {
+            anchors: Some(&anchors),
+            ..Default::default()
+        };
+        let config = RelaxConfig {
+            force_scale: Some(diag.force_scale_n),
+            ..RelaxConfig::DEFAULT
+        };
+        let report = system.relax(&mut stale, &loads, &config).unwrap();
+        assert!(report.iterations > 5, "frame {frame}: {report:?}");
+    }
 }
