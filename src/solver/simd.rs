@@ -51,25 +51,25 @@ pub(crate) trait Lanes: Copy {
     /// # Safety
     /// 64 floats from `p` must be readable.
     unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8];
-    /// `v[rows.at(l)]` per lane as x, y and z lanes, for `v` the `n` vectors at `p` and `j` the
-    /// same indices already loaded as lanes.
+    /// `v[i]` per lane as x, y and z lanes, for `v` the `n` vectors at `p`, `i` the indices
+    /// `j` and `rows` the same indices as float offsets.
     ///
     /// # Safety
-    /// `p` points to `3 n` readable floats and every `rows.at(l) < n` (eight of them).
-    unsafe fn vec3s<R: Rows>(self, p: *const f32, n: usize, rows: R, j: Self::I) -> [Self::F; 3];
+    /// `p` points to `3 n` readable floats and every index is below `n`.
+    unsafe fn vec3s(self, p: *const f32, n: usize, rows: &Rows, j: Self::I) -> [Self::F; 3];
     /// `x + a d` at the same rows: [`vec3s`](Self::vec3s) of `x` (at `p`) and of `d` (at `dp`),
     /// then per component `x + d·a` (the same f32 operations, in any lane arrangement).
     ///
     /// # Safety
     /// As [`vec3s`](Self::vec3s), for both `p` and `dp`.
     #[inline(always)]
-    unsafe fn vec3s_step<R: Rows>(
+    unsafe fn vec3s_step(
         self,
         p: *const f32,
         dp: *const f32,
         a: Self::F,
         n: usize,
-        rows: R,
+        rows: &Rows,
         j: Self::I,
     ) -> [Self::F; 3] {
         // SAFETY: the caller's contract.
@@ -153,9 +153,10 @@ impl Lanes for Scalar {
         std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(8 * l + c) }))
     }
     #[inline(always)]
-    unsafe fn vec3s<R: Rows>(self, p: *const f32, _n: usize, rows: R, _j: Self::I) -> [Self::F; 3] {
+    unsafe fn vec3s(self, p: *const f32, _n: usize, rows: &Rows, _j: Self::I) -> [Self::F; 3] {
         // SAFETY: the caller guarantees the indices are in bounds.
-        std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(3 * rows.at(l) + c) }))
+        let p = unsafe { p.add(3 * rows.shift) };
+        std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.offset(rows.o[l]).add(c) }))
     }
     #[inline(always)]
     unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
@@ -358,11 +359,11 @@ mod avx2 {
             }
         }
         #[inline(always)]
-        unsafe fn vec3s<R: super::Rows>(
+        unsafe fn vec3s(
             self,
             p: *const f32,
             n: usize,
-            rows: R,
+            rows: &super::Rows,
             j: Self::I,
         ) -> [Self::F; 3] {
             // SAFETY: the caller guarantees every index is below n. Each vector is read as 16
@@ -374,9 +375,10 @@ mod avx2 {
                 if _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0 {
                     return super::gather3(self, p, self.times3(j));
                 }
+                let p = p.add(3 * rows.shift);
                 macro_rules! row {
                     ($l:literal) => {
-                        _mm_loadu_ps(p.add(3 * rows.at($l)))
+                        _mm_loadu_ps(p.offset(*rows.o.get_unchecked($l)))
                     };
                 }
                 let v0 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(0)), row!(4));
@@ -395,13 +397,13 @@ mod avx2 {
             }
         }
         #[inline(always)]
-        unsafe fn vec3s_step<R: super::Rows>(
+        unsafe fn vec3s_step(
             self,
             p: *const f32,
             dp: *const f32,
             a: Self::F,
             n: usize,
-            rows: R,
+            rows: &super::Rows,
             j: Self::I,
         ) -> [Self::F; 3] {
             // SAFETY: as in `vec3s`; the 16-byte rows of x and d are combined before the
@@ -416,15 +418,16 @@ mod avx2 {
                     );
                     return super::stepped::<Self, true>(self, x, d, a);
                 }
-                let o: [usize; 8] = std::array::from_fn(|l| 3 * rows.at(l));
+                let o = &rows.o;
+                let (p, dp) = (p.add(3 * rows.shift), dp.add(3 * rows.shift));
                 let pair = |lo: usize, hi: usize| {
                     let x = _mm256_insertf128_ps::<1>(
-                        _mm256_castps128_ps256(_mm_loadu_ps(p.add(o[lo]))),
-                        _mm_loadu_ps(p.add(o[hi])),
+                        _mm256_castps128_ps256(_mm_loadu_ps(p.offset(o[lo]))),
+                        _mm_loadu_ps(p.offset(o[hi])),
                     );
                     let d = _mm256_insertf128_ps::<1>(
-                        _mm256_castps128_ps256(_mm_loadu_ps(dp.add(o[lo]))),
-                        _mm_loadu_ps(dp.add(o[hi])),
+                        _mm256_castps128_ps256(_mm_loadu_ps(dp.offset(o[lo]))),
+                        _mm_loadu_ps(dp.offset(o[hi])),
                     );
                     _mm256_add_ps(x, _mm256_mul_ps(d, a))
                 };
@@ -635,50 +638,37 @@ pub(crate) struct ForceInputs<'a> {
     pub w: Option<&'a [f32]>,
 }
 
-/// The other ends of one entry's eight springs (one per lane).
-pub(crate) trait Rows: Copy {
-    /// The vertex at the other end of lane `l`'s spring.
-    ///
-    /// # Safety
-    /// `l < 8`.
-    unsafe fn at(self, l: usize) -> usize;
+/// The other ends `j` of one entry's eight springs, decoded once for every array read at them:
+/// as float offsets `3 (j − shift)` (one per lane) from the floats of vertex `shift`, so that a
+/// 16-bit offset needs no addition per lane.
+pub(crate) struct Rows {
+    o: [isize; 8],
+    shift: usize,
 }
 
-/// Other ends stored as 16-bit offsets from the slice's first vertex `base`.
-#[derive(Clone, Copy)]
-pub(crate) struct NearRows {
-    p: *const i16,
-    base: usize,
+/// `v[e..e + 8]` without a bounds check.
+///
+/// # Safety
+/// `e + 8 <= v.len()`.
+#[inline(always)]
+unsafe fn eight<T>(v: &[T], e: usize) -> &[T] {
+    debug_assert!(e + LANES <= v.len());
+    // SAFETY: the caller's contract.
+    unsafe { v.get_unchecked(e..e + LANES) }
 }
 
-impl Rows for NearRows {
-    #[inline(always)]
-    unsafe fn at(self, l: usize) -> usize {
-        // SAFETY: `p` points to eight offsets and `l < 8` (the caller's contract). A volatile
-        // read keeps the decode scalar (a load and an add per lane): vectorised, the compiler
-        // turns the eight decodes into slow 64-bit vector arithmetic and extractions.
-        let offset = unsafe { self.p.add(l).read_volatile() };
-        self.base.wrapping_add_signed(offset as isize)
-    }
-}
-
-/// Other ends stored as full indices.
-#[derive(Clone, Copy)]
-pub(crate) struct FarRows(*const u32);
-
-impl Rows for FarRows {
-    #[inline(always)]
-    unsafe fn at(self, l: usize) -> usize {
-        // SAFETY: the pointer names eight indices and `l < 8` (the caller's contract).
-        unsafe { *self.0.add(l) as usize }
-    }
+/// Checks the per-entry arrays of `sell` cover every slice's entries (`start` rises, by
+/// construction), so that `eight(.., e)` is in bounds for any entry `e` of any slice.
+#[inline(always)]
+fn assert_entries(sell: &Sell) {
+    let total = sell.start.last().map_or(0, |&t| t as usize);
+    assert!(sell.k.len() == total && sell.rest.len() == total && sell.near.len() == total);
 }
 
 /// Where the other ends of one slice's springs are stored (see [`Sell`]).
 trait Ends: Copy {
-    type R: Rows;
     /// The other ends of entry `e` (of this slice) as lanes and as rows.
-    fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Self::R);
+    fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows);
 }
 
 /// A slice whose other ends are 16-bit offsets from its first vertex `base`.
@@ -689,13 +679,20 @@ struct Near<'a> {
 }
 
 impl Ends for Near<'_> {
-    type R = NearRows;
     #[inline(always)]
-    fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, NearRows) {
-        let p = &self.near[e..e + LANES];
-        let rows = NearRows {
-            p: p.as_ptr(),
-            base: self.base as usize,
+    fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows) {
+        // SAFETY: `e` is an entry of this slice (the caller's arrays checked).
+        let p = unsafe { eight(self.near, e) };
+        // Volatile reads keep the decode scalar (a sign-extending load and a multiply-by-3
+        // address per lane): vectorised, the compiler turns it into 64-bit vector arithmetic
+        // and extractions, which cost more.
+        let o = std::array::from_fn(|k| {
+            // SAFETY: eight offsets in bounds (sliced above).
+            3 * unsafe { p.as_ptr().add(k).read_volatile() } as isize
+        });
+        let rows = Rows {
+            o,
+            shift: self.base as usize,
         };
         (l.load_near(p, self.base), rows)
     }
@@ -709,11 +706,14 @@ struct Far<'a> {
 }
 
 impl Ends for Far<'_> {
-    type R = FarRows;
     #[inline(always)]
-    fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, FarRows) {
+    fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows) {
         let p = &self.far[e - self.begin..e - self.begin + LANES];
-        (l.load_i(p), FarRows(p.as_ptr()))
+        let rows = Rows {
+            o: std::array::from_fn(|k| 3 * p[k] as isize),
+            shift: 0,
+        };
+        (l.load_i(p), rows)
     }
 }
 
@@ -819,14 +819,14 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     let upper = sell.upper_entries(s).start;
     for e in sell.entries(s).step_by(LANES) {
         let (j, rows) = ends.at(l, e);
-        let k = l.load(&sell.k[e..e + LANES]);
-        let rest = l.load(&sell.rest[e..e + LANES]);
+        // SAFETY: `e` is an entry of slice `s` (asserted in bounds by the caller).
+        let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
         // SAFETY: spring indices are below n, x and d have n entries.
         let [zx, zy, zz] = unsafe {
             if STEP {
-                l.vec3s_step(xp, dp, a, sell.n, rows, j)
+                l.vec3s_step(xp, dp, a, sell.n, &rows, j)
             } else {
-                l.vec3s(xp, sell.n, rows, j)
+                l.vec3s(xp, sell.n, &rows, j)
             }
         };
         let (ex, ey, ez) = (l.sub(zx, yx), l.sub(zy, yy), l.sub(zz, yz));
@@ -834,10 +834,13 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         let len = l.sqrt(l2);
         let inv = l.div(one, len);
         let ok = l.gt(len, tiny);
-        let c = l.mul(l.mul(k, l.sub(len, rest)), inv);
-        fx = l.select(ok, l.add(fx, l.mul(ex, c)), fx);
-        fy = l.select(ok, l.add(fy, l.mul(ey, c)), fy);
-        fz = l.select(ok, l.add(fz, l.mul(ez, c)), fz);
+        // A degenerate spring (no direction) adds nothing: its coefficient is zeroed, and
+        // `f + e·0` is `f` bit for bit (`e` is finite there, and a sum that starts at +0 is
+        // never −0), as if the spring were skipped.
+        let c = l.select(ok, l.mul(l.mul(k, l.sub(len, rest)), inv), zero);
+        fx = l.add(fx, l.mul(ex, c));
+        fy = l.add(fy, l.mul(ey, c));
+        fz = l.add(fz, l.mul(ez, c));
         if e < upper {
             continue;
         }
@@ -935,6 +938,7 @@ fn force_chunk<S: Lanes, const STEP: bool>(
 ) -> Sums {
     let n = f.sell.n;
     let w = f.w;
+    assert_entries(f.sell);
     assert!(
         f.x.len() == n
             && f.step.is_none_or(|(d, _)| d.len() == n)
@@ -1182,6 +1186,7 @@ fn curvature_chunk<S: Lanes>(
     slices: std::ops::Range<usize>,
 ) -> f64 {
     let n = sell.n;
+    assert_entries(sell);
     assert!(
         x.len() == n
             && d.len() == n
@@ -1204,11 +1209,11 @@ fn curvature_chunk<S: Lanes>(
             let mut vertex = zero;
         for e in sell.upper_entries(s).step_by(LANES) {
             let (j, rows) = ends.at(l, e);
-            let k = l.load(&sell.k[e..e + LANES]);
-            let rest = l.load(&sell.rest[e..e + LANES]);
+            // SAFETY: `e` is an entry of slice `s` (its arrays checked above).
+            let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
             // SAFETY: spring indices are below n, x and d have n entries.
-            let [zx, zy, zz] = unsafe { l.vec3s(xp, n, rows, j) };
-            let [vx, vy, vz] = unsafe { l.vec3s(dp, n, rows, j) };
+            let [zx, zy, zz] = unsafe { l.vec3s(xp, n, &rows, j) };
+            let [vx, vy, vz] = unsafe { l.vec3s(dp, n, &rows, j) };
             let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));
             let (ux, uy, uz) = (l.sub(vx, dx), l.sub(vy, dy), l.sub(vz, dz));
             let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));

@@ -54,24 +54,24 @@ impl Lanes for Avx512 {
         unsafe { A.load8x8(p) }
     }
     #[inline(always)]
-    unsafe fn vec3s<R: super::Rows>(
+    unsafe fn vec3s(
         self,
         p: *const f32,
         n: usize,
-        rows: R,
+        rows: &super::Rows,
         j: Self::I,
     ) -> [Self::F; 3] {
         // SAFETY: the caller's contract.
         unsafe { A.vec3s(p, n, rows, j) }
     }
     #[inline(always)]
-    unsafe fn vec3s_step<R: super::Rows>(
+    unsafe fn vec3s_step(
         self,
         p: *const f32,
         dp: *const f32,
         a: Self::F,
         n: usize,
-        rows: R,
+        rows: &super::Rows,
         j: Self::I,
     ) -> [Self::F; 3] {
         // SAFETY: the caller's contract.
