@@ -391,11 +391,16 @@ impl SpringSystem {
     pub fn order(&self) -> &[u32] {
         &self.order
     }
-    /// Bytes of spring data per vertex (two 12-byte half-springs per edge, padded to the
-    /// largest degree in each slice of eight vertices, and one offset per slice).
+    /// Bytes of spring data per vertex (two 10-byte half-springs per edge, padded to the
+    /// largest degree in each slice of eight vertices, two offsets per slice, and 32-bit
+    /// indices for the few slices with a neighbour beyond a 16-bit offset).
     pub fn bytes_per_vertex(&self) -> f64 {
         self.sell.bytes() as f64 / self.vertex_count().max(1) as f64
     }
+
+    /// Bytes per vertex of the vectors a relaxation iterates on besides the springs: positions,
+    /// direction and force (12 B each) and the inverse diagonal with the pin flag (4 B).
+    pub const VECTOR_BYTES_PER_VERTEX: usize = 3 * 12 + 4;
 
     fn to_internal<T: Copy + Send + Sync>(&self, data: &[T]) -> Vec<T> {
         self.order.par_iter().map(|&o| data[o as usize]).collect()

@@ -12,7 +12,9 @@
 //! The other end of a spring is stored as a 16-bit offset from the slice's first vertex
 //! (vertices are in Morton order, so almost every neighbour is near); a slice with a neighbour
 //! farther than that ("wide", flagged in [`Sell::upper`]) keeps full 32-bit indices in
-//! [`Sell::far`] instead.
+//! [`Sell::far`] instead. So does every slice that names the last vertex (the last slice and
+//! its neighbours): the kernels read a vertex as 16 bytes, one float past its own, which they
+//! may do without a check in the near slices only.
 
 use super::Spring;
 
@@ -92,7 +94,11 @@ impl Sell {
                 }
             }
             let base = (s * LANES) as i64;
-            let offset = |o: &u32| i16::try_from(*o as i64 - base).ok();
+            let offset = |o: &u32| {
+                i16::try_from(*o as i64 - base)
+                    .ok()
+                    .filter(|_| *o as usize + 1 < n)
+            };
             let mut flag = 0;
             if other.iter().all(|o| offset(o).is_some()) {
                 for (slot, o) in near[begin..end].iter_mut().zip(&other) {
@@ -222,7 +228,9 @@ mod tests {
         let total: f32 = springs.iter().map(|s| s.k).sum();
         assert_eq!(sell.k.iter().sum::<f32>(), total);
         assert_eq!(sell.near.len(), 32 + 32);
-        assert!(sell.wide.is_empty());
+        // Only the last slice names the last vertex (10 is a neighbour of 9 alone): it keeps
+        // full indices, from the start of `far`.
+        assert_eq!(sell.wide, vec![(1, 0)]);
         // Every spring to a higher vertex lies in its slice's upper entries.
         for s in 0..sell.slices() {
             for e in sell.entries(s) {
@@ -261,7 +269,8 @@ mod tests {
         let sell = Sell::from_csr(&offsets, &springs);
         let wide: Vec<u32> = sell.wide.iter().map(|w| w.0).collect();
         // Slice 0 reaches n - 1 (wide); the slice of n - 20 and the last slice reach 3 and 0
-        // (wide); the slice of 32 000 reaches 7 (offset -31 993, still near).
+        // (wide); the slice of 32 000 reaches 7 (offset -31 993, still near). Only the last
+        // slice names the last vertex along the chain (it holds it).
         let last = (n as usize).div_ceil(LANES) as u32 - 1;
         assert_eq!(wide, vec![0, (n - 20) / 8, last]);
         assert!(sell.far_of(32_000 / 8).is_none());

@@ -372,7 +372,9 @@ mod avx2 {
             // so a group that names it takes the gathers instead.
             unsafe {
                 let last = _mm256_set1_epi32(n as i32 - 1);
-                if _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0 {
+                if rows.may_name_last
+                    && _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0
+                {
                     return super::gather3(self, p, self.times3(j));
                 }
                 let p = p.add(3 * rows.shift);
@@ -411,7 +413,9 @@ mod avx2 {
             // vector's x, is combined too and then dropped).
             unsafe {
                 let last = _mm256_set1_epi32(n as i32 - 1);
-                if _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0 {
+                if rows.may_name_last
+                    && _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0
+                {
                     let (x, d) = (
                         super::gather3(self, p, self.times3(j)),
                         super::gather3(self, dp, self.times3(j)),
@@ -644,6 +648,9 @@ pub(crate) struct ForceInputs<'a> {
 pub(crate) struct Rows {
     o: [isize; 8],
     shift: usize,
+    /// Some lane may name the last vertex (whose 16-byte row would read past the end);
+    /// `false` for near slices, which never do (see [`Sell`]).
+    may_name_last: bool,
 }
 
 /// `v[e..e + 8]` without a bounds check.
@@ -693,6 +700,7 @@ impl Ends for Near<'_> {
         let rows = Rows {
             o,
             shift: self.base as usize,
+            may_name_last: false,
         };
         (l.load_near(p, self.base), rows)
     }
@@ -712,6 +720,7 @@ impl Ends for Far<'_> {
         let rows = Rows {
             o: std::array::from_fn(|k| 3 * p[k] as isize),
             shift: 0,
+            may_name_last: true,
         };
         (l.load_i(p), rows)
     }
