@@ -626,7 +626,8 @@ impl SpringSystem {
                     contacts.reapply(&mut r);
                 }
                 let a = alpha as f32;
-                let sums = frame.gather_step(&xi, &d, a, Some(&inv_diag), &mut r, &mut sums_scratch);
+                let sums =
+                    frame.gather_step(&xi, &d, a, Some(&inv_diag), &mut r, &mut sums_scratch);
                 if sums.energy < energy {
                     accepted = Some((sums, a));
                     break;

@@ -188,8 +188,7 @@ impl Sell {
 
     /// Bytes held.
     pub fn bytes(&self) -> usize {
-        (self.start.len() + self.upper.len() + self.k.len() + self.rest.len() + self.far.len())
-            * 4
+        (self.start.len() + self.upper.len() + self.k.len() + self.rest.len() + self.far.len()) * 4
             + self.near.len() * 2
             + self.wide.len() * 8
     }

@@ -814,7 +814,11 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     // SAFETY (all gathers): indices below n, arrays of n entries (the caller's contract).
     let [yx, yy, yz] = unsafe {
         let x = own_vec3(l, sell, s, own, f.x);
-        let d = if STEP { own_vec3(l, sell, s, own, d) } else { x };
+        let d = if STEP {
+            own_vec3(l, sell, s, own, d)
+        } else {
+            x
+        };
         stepped::<S, STEP>(l, x, d, a)
     };
     let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
@@ -1156,7 +1160,10 @@ fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32) {
     let full = x.len() / LANES * LANES;
     let av = l.splat(a);
     for o in (0..full).step_by(LANES) {
-        let (xp, dp) = (x[o..].as_mut_ptr().cast::<f32>(), d[o..].as_ptr().cast::<f32>());
+        let (xp, dp) = (
+            x[o..].as_mut_ptr().cast::<f32>(),
+            d[o..].as_ptr().cast::<f32>(),
+        );
         // SAFETY: eight vectors from `o < full` are in bounds of `x` and `d`.
         unsafe {
             let moved = stepped::<S, true>(l, l.load3(xp), l.load3(dp), av);
@@ -1474,10 +1481,7 @@ mod tests {
         let a = 0.37f32;
         let x0: Vec<Vec3> = xi.iter().map(|x| *x * 0.999).collect();
         let stepped: Vec<Vec3> = x0.iter().zip(&d).map(|(x, d)| *x + *d * a).collect();
-        for (x, step, at) in [
-            (&xi, None, &xi),
-            (&x0, Some((d.as_slice(), a)), &stepped),
-        ] {
+        for (x, step, at) in [(&xi, None, &xi), (&x0, Some((d.as_slice(), a)), &stepped)] {
             let (want, want_energy) = reference(sell, at, &ai, &ei, &pi);
             for isa in isas() {
                 let inputs = ForceInputs {
@@ -1504,7 +1508,13 @@ mod tests {
     /// Inverse-diagonal-like weights with the pin flags as their sign.
     fn weights(pinned: &[bool]) -> Vec<f32> {
         (0..pinned.len())
-            .map(|i| if pinned[i] { -0.0 } else { 1.0 / (3.0 + i as f32) })
+            .map(|i| {
+                if pinned[i] {
+                    -0.0
+                } else {
+                    1.0 / (3.0 + i as f32)
+                }
+            })
             .collect()
     }
 
@@ -1562,7 +1572,8 @@ mod tests {
         for i in 0..sell.n {
             let mut vertex = 0.0f32;
             for s in sell.springs_of(i).filter(|s| s.other as usize > i) {
-                vertex += spring_curvature(&s, x[s.other as usize] - x[i], d[s.other as usize] - d[i]);
+                vertex +=
+                    spring_curvature(&s, x[s.other as usize] - x[i], d[s.other as usize] - d[i]);
             }
             lanes[i % 8] += vertex as f64;
         }

@@ -54,13 +54,7 @@ impl Lanes for Avx512 {
         unsafe { A.load8x8(p) }
     }
     #[inline(always)]
-    unsafe fn vec3s(
-        self,
-        p: *const f32,
-        n: usize,
-        rows: &super::Rows,
-        j: Self::I,
-    ) -> [Self::F; 3] {
+    unsafe fn vec3s(self, p: *const f32, n: usize, rows: &super::Rows, j: Self::I) -> [Self::F; 3] {
         // SAFETY: the caller's contract.
         unsafe { A.vec3s(p, n, rows, j) }
     }
