@@ -300,8 +300,8 @@ fn relax_figures(
             .expect("at least one run")
     });
     let (t_naive, _) = naive_scatter(work, anchors, if n > 500_000 { 3 } else { 10 });
-    // Solver vectors: x, trial, d, r (4 × 12 B), inverse diagonal and pin (5 B).
-    let vectors = 4.0 * 12.0 + 5.0;
+    // Solver vectors: x, d, r and the inverse diagonal (with the pin flag).
+    let vectors = SpringSystem::VECTOR_BYTES_PER_VERTEX as f64;
     RelaxFigures {
         vertex_iterations_per_s: n as f64 / per_iteration,
         fraction_of_floor: floor / per_iteration,

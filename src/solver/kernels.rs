@@ -1,10 +1,12 @@
 //! Vertex-centric gather kernels over the sliced springs: forces, energy and curvature.
 //!
 //! Every kernel reads the neighbours of a vertex and writes only that vertex, over fixed-size
-//! chunks (eight vertices at a time, see [`super::simd`]). Partial sums are per chunk and added in chunk order, so the results are bit-identical
-//! for any number of threads. The dot products the conjugate-gradient update needs are taken
-//! inside the passes that produce their operands, so one iteration streams the vertices three
-//! times: the force gather, the direction update and the curvature gather.
+//! chunks (eight vertices at a time, see [`super::simd`]). Partial sums are per chunk and added
+//! in chunk order, so the results are bit-identical for any number of threads. The dot products
+//! the conjugate-gradient update needs are taken inside the passes that produce their operands,
+//! and the trial point `x + a d` is computed inside the force gather (no trial vector), so one
+//! iteration streams the vertices three times: the force gather at the trial point, the step
+//! with the direction update, and the curvature gather.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -21,7 +23,6 @@ pub(crate) struct Frame<'a> {
     pub sell: &'a Sell,
     pub isa: Isa,
     pub external: Option<&'a [Vec3]>,
-    pub pinned: &'a [bool],
     pub anchors: Option<&'a [VertexAnchor]>,
 }
 
@@ -62,8 +63,9 @@ fn total<T: Copy + Default + std::ops::AddAssign>(partial: &[T]) -> T {
 }
 
 impl Frame<'_> {
-    /// Net force at `x` into `r`, with the energy and the dot
-    /// products of the conjugate-gradient update (weights `w`: the inverse diagonal).
+    /// Net force at `x` into `r`, with the energy and the dot products of the
+    /// conjugate-gradient update (weights `w`: the [inverse diagonal](Self::inverse_diagonal),
+    /// whose sign marks the pinned vertices; `None`: nothing pinned, no dot products).
     /// `partial` is scratch with one entry per chunk.
     pub fn gather(
         &self,
@@ -72,17 +74,43 @@ impl Frame<'_> {
         r: &mut [Vec3],
         partial: &mut [Sums],
     ) -> Sums {
+        self.gather_inputs(x, None, w, r, partial)
+    }
+
+    /// [`gather`](Self::gather) at the trial point `x + a d`, computed on the fly with the
+    /// same f32 operations as [`advance`] (so the accepted step lands exactly there).
+    pub fn gather_step(
+        &self,
+        x: &[Vec3],
+        d: &[Vec3],
+        a: f32,
+        w: Option<&[f32]>,
+        r: &mut [Vec3],
+        partial: &mut [Sums],
+    ) -> Sums {
+        self.gather_inputs(x, Some((d, a)), w, r, partial)
+    }
+
+    fn gather_inputs(
+        &self,
+        x: &[Vec3],
+        step: Option<(&[Vec3], f32)>,
+        w: Option<&[f32]>,
+        r: &mut [Vec3],
+        partial: &mut [Sums],
+    ) -> Sums {
         let inputs = ForceInputs {
             sell: self.sell,
             x,
+            step,
             anchors: self.anchors,
             external: self.external,
-            pinned: self.pinned,
+            w,
         };
         r.par_chunks_mut(CHUNK)
             .zip(partial.par_iter_mut())
             .enumerate()
-            .for_each(|(c, (chunk, p))| *p = inputs.chunk(self.isa, c * CHUNK, chunk, w));
+            .for_each(|(c, (chunk, p))| *p = inputs.chunk(self.isa, c * CHUNK, chunk));
         total(partial)
     }
 
@@ -98,14 +126,16 @@ impl Frame<'_> {
         total(partial)
     }
 
-    /// Jacobi preconditioner: the diagonal stiffness of each vertex (inverse, zero when pinned).
-    pub fn inverse_diagonal(&self, n: usize) -> Vec<f32> {
-        (0..n)
+    /// Jacobi preconditioner: the diagonal stiffness of each vertex, inverted (`+0.0` when
+    /// there is none), `-0.0` for a `pinned` vertex: the sign is the pin flag the force gather
+    /// reads, and the weight is zero either way.
+    pub fn inverse_diagonal(&self, pinned: &[bool]) -> Vec<f32> {
+        (0..pinned.len())
             .into_par_iter()
             .with_min_len(CHUNK)
             .map(|i| {
-                if self.pinned[i] {
-                    return 0.0;
+                if pinned[i] {
+                    return -0.0;
                 }
                 let mut diag: f32 = self.sell.springs_of(i).map(|s| s.k).sum();
                 if let Some(a) = self.anchors {
@@ -130,8 +160,39 @@ pub(crate) fn update_direction(
         .zip(r.par_chunks(CHUNK))
         .zip(w.par_chunks(CHUNK))
         .zip(partial.par_iter_mut())
-        .for_each(|(((d, r), w), p)| *p = simd::direction(isa, d, r, w, beta));
+        .for_each(|(((d, r), w), p)| *p = simd::direction(isa, d, r, w, beta, None));
     total(partial)
+}
+
+/// The accepted step `x += a d` fused with the direction update `d = w·r + β d` that follows
+/// it (one pass instead of two); returns `Σ r·d` for the new direction.
+pub(crate) fn step_and_update_direction(
+    x: &mut [Vec3],
+    a: f32,
+    d: &mut [Vec3],
+    r: &[Vec3],
+    w: &[f32],
+    beta: f32,
+    partial: &mut [f64],
+) -> f64 {
+    let isa = Isa::detect(0);
+    x.par_chunks_mut(CHUNK)
+        .zip(d.par_chunks_mut(CHUNK))
+        .zip(r.par_chunks(CHUNK))
+        .zip(w.par_chunks(CHUNK))
+        .zip(partial.par_iter_mut())
+        .for_each(|((((x, d), r), w), p)| {
+            *p = simd::direction(isa, d, r, w, beta, Some((x, a)));
+        });
+    total(partial)
+}
+
+/// The accepted step `x += a d` (the same f32 operations as [`Frame::gather_step`]).
+pub(crate) fn advance(x: &mut [Vec3], d: &[Vec3], a: f32) {
+    let isa = Isa::detect(0);
+    x.par_chunks_mut(CHUNK)
+        .zip(d.par_chunks(CHUNK))
+        .for_each(|(x, d)| simd::advance(isa, x, d, a));
 }
 
 /// Deterministic dot product of two vector fields (f64 accumulation, chunked).

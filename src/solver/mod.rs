@@ -16,7 +16,7 @@ use thiserror::Error;
 
 use crate::mesh::TriMesh;
 use contact::ContactSet;
-use kernels::{Frame, Sums, dot, update_direction};
+use kernels::{Frame, Sums, advance, dot, step_and_update_direction, update_direction};
 use sell::Sell;
 
 /// One spring as seen from one of its ends (the system stores each twice, once per end).
@@ -391,11 +391,16 @@ impl SpringSystem {
     pub fn order(&self) -> &[u32] {
         &self.order
     }
-    /// Bytes of spring data per vertex (two 12-byte half-springs per edge, padded to the
-    /// largest degree in each slice of eight vertices, and one offset per slice).
+    /// Bytes of spring data per vertex (two 10-byte half-springs per edge, padded to the
+    /// largest degree in each slice of eight vertices, two offsets per slice, and 32-bit
+    /// indices for the few slices with a neighbour beyond a 16-bit offset).
     pub fn bytes_per_vertex(&self) -> f64 {
         self.sell.bytes() as f64 / self.vertex_count().max(1) as f64
     }
+
+    /// Bytes per vertex of the vectors a relaxation iterates on besides the springs: positions,
+    /// direction and force (12 B each) and the inverse diagonal with the pin flag (4 B).
+    pub const VECTOR_BYTES_PER_VERTEX: usize = 3 * 12 + 4;
 
     fn to_internal<T: Copy + Send + Sync>(&self, data: &[T]) -> Vec<T> {
         self.order.par_iter().map(|&o| data[o as usize]).collect()
@@ -410,14 +415,12 @@ impl SpringSystem {
     fn frame<'a>(
         &'a self,
         external: Option<&'a [Vec3]>,
-        pinned: &'a [bool],
         anchors: Option<&'a [VertexAnchor]>,
     ) -> Frame<'a> {
         Frame {
             sell: &self.sell,
             isa: simd::Isa::detect(self.vertex_count()),
             external,
-            pinned,
             anchors,
         }
     }
@@ -426,10 +429,9 @@ impl SpringSystem {
     pub fn spring_forces(&self, x: &[Vec3]) -> Result<Vec<Vec3>, SolverError> {
         check_len("positions", x.len(), self.vertex_count())?;
         let xi = self.to_internal(x);
-        let pinned = vec![false; xi.len()];
         let mut f = vec![Vec3::ZERO; xi.len()];
         let mut partial = vec![Sums::default(); kernels::chunks(xi.len())];
-        self.frame(None, &pinned, None)
+        self.frame(None, None)
             .gather(&xi, None, &mut f, &mut partial);
         let mut out = vec![Vec3::ZERO; xi.len()];
         self.to_caller(&f, &mut out);
@@ -440,11 +442,10 @@ impl SpringSystem {
     pub fn spring_energy(&self, x: &[Vec3]) -> Result<f64, SolverError> {
         check_len("positions", x.len(), self.vertex_count())?;
         let xi = self.to_internal(x);
-        let pinned = vec![false; xi.len()];
         let mut f = vec![Vec3::ZERO; xi.len()];
         let mut partial = vec![Sums::default(); kernels::chunks(xi.len())];
         Ok(self
-            .frame(None, &pinned, None)
+            .frame(None, None)
             .gather(&xi, None, &mut f, &mut partial)
             .energy)
     }
@@ -522,10 +523,11 @@ impl SpringSystem {
             None => vec![false; n],
         };
         let anchors = loads.anchors.map(|a| self.to_internal(a));
-        let frame = self.frame(external.as_deref(), &pinned, anchors.as_deref());
+        let frame = self.frame(external.as_deref(), anchors.as_deref());
         let mut xi = self.to_internal(x);
 
-        let inv_diag = frame.inverse_diagonal(n);
+        // The inverse diagonal carries the pin flags (as its sign).
+        let inv_diag = frame.inverse_diagonal(&pinned);
         let chunks = kernels::chunks(n);
         let mut sums_scratch = vec![Sums::default(); chunks];
         let mut scalar_scratch = vec![0.0f64; chunks];
@@ -581,7 +583,6 @@ impl SpringSystem {
 
         // d = z = w r (preconditioned steepest descent), slope = r·d.
         let mut d = vec![Vec3::ZERO; n];
-        let mut trial = vec![Vec3::ZERO; n];
         let mut rz = sums.rzr;
         let mut slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
             + contacts.constrain_direction(&mut d, &r);
@@ -616,28 +617,24 @@ impl SpringSystem {
             } else {
                 1.0
             };
-            // The force gather at the trial point overwrites `r` (reading the old force for
-            // the Polak-Ribiere product first); a rejected trial restores it.
+            // The force gather at the trial point `x + a d` overwrites `r` (reading the old
+            // force for the Polak-Ribiere product first); a rejected trial restores it.
             let mut accepted = None;
             for attempt in 0..30 {
                 if attempt > 0 {
-                    frame.gather(&xi, None, &mut r, &mut sums_scratch);
+                    frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
                     contacts.reapply(&mut r);
                 }
                 let a = alpha as f32;
-                trial
-                    .par_iter_mut()
-                    .zip(xi.par_iter().zip(d.par_iter()))
-                    .with_min_len(kernels::CHUNK)
-                    .for_each(|(t, (x, d))| *t = *x + *d * a);
-                let sums = frame.gather(&trial, Some(&inv_diag), &mut r, &mut sums_scratch);
+                let sums =
+                    frame.gather_step(&xi, &d, a, Some(&inv_diag), &mut r, &mut sums_scratch);
                 if sums.energy < energy {
-                    accepted = Some(sums);
+                    accepted = Some((sums, a));
                     break;
                 }
                 alpha *= 0.5;
             }
-            let Some(mut sums) = accepted else {
+            let Some((mut sums, step)) = accepted else {
                 let mut sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
                 contacts.constrain(&mut r, &inv_diag, &mut sums);
                 r_norm = sums.rr.sqrt();
@@ -651,7 +648,12 @@ impl SpringSystem {
             // vertices' residuals are tangent to their contacts before and after.
             let rz_old = sums.rz_old;
             let mut restart = false;
-            std::mem::swap(&mut xi, &mut trial);
+            // The step `x += a d` lands exactly on the trial point; without a projection it is
+            // fused into the direction update below.
+            let step_now = projection.is_some();
+            if step_now {
+                advance(&mut xi, &d, step);
+            }
             if let Some(p) = projection.as_deref_mut() {
                 if p.project(&mut xi, &self.order) {
                     sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
@@ -678,8 +680,12 @@ impl SpringSystem {
                 ((sums.rzr - rz_old) / rz).max(0.0)
             };
             rz = sums.rzr;
-            slope = update_direction(&mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch)
-                + contacts.constrain_direction(&mut d, &r);
+            slope = if step_now {
+                update_direction(&mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch)
+            } else {
+                let (b, scratch) = (beta as f32, &mut scalar_scratch);
+                step_and_update_direction(&mut xi, step, &mut d, &r, &inv_diag, b, scratch)
+            } + contacts.constrain_direction(&mut d, &r);
         }
         if stop == StopReason::Budget && converged(r_norm) {
             stop = StopReason::Converged;

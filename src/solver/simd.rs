@@ -33,6 +33,8 @@ pub(crate) trait Lanes: Copy {
     fn splat(self, v: f32) -> Self::F;
     fn load(self, p: &[f32]) -> Self::F;
     fn load_i(self, p: &[u32]) -> Self::I;
+    /// `base + p[l]` per lane (16-bit offsets, sign-extended).
+    fn load_near(self, p: &[i16], base: u32) -> Self::I;
     /// `base[idx[l]]` per lane.
     ///
     /// # Safety
@@ -49,19 +51,38 @@ pub(crate) trait Lanes: Copy {
     /// # Safety
     /// 64 floats from `p` must be readable.
     unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8];
-    /// `v[idx[l]]` per lane as x, y and z lanes, for `v` the `n` vectors at `p` and `j` the
-    /// indices `idx` already loaded.
+    /// `v[i]` per lane as x, y and z lanes, for `v` the `n` vectors at `p`, `i` the indices
+    /// `j` and `rows` the same indices as float offsets.
     ///
     /// # Safety
-    /// `p` points to `3 n` readable floats and every `idx[l] < n` (eight of them).
-    unsafe fn vec3s(self, p: *const f32, n: usize, idx: &[u32], j: Self::I) -> [Self::F; 3];
+    /// `p` points to `3 n` readable floats and every index is below `n`.
+    unsafe fn vec3s(self, p: *const f32, n: usize, rows: &Rows, j: Self::I) -> [Self::F; 3];
+    /// `x + a d` at the same rows: [`vec3s`](Self::vec3s) of `x` (at `p`) and of `d` (at `dp`),
+    /// then per component `x + d·a` (the same f32 operations, in any lane arrangement).
+    ///
+    /// # Safety
+    /// As [`vec3s`](Self::vec3s), for both `p` and `dp`.
+    #[inline(always)]
+    unsafe fn vec3s_step(
+        self,
+        p: *const f32,
+        dp: *const f32,
+        a: Self::F,
+        n: usize,
+        rows: &Rows,
+        j: Self::I,
+    ) -> [Self::F; 3] {
+        // SAFETY: the caller's contract.
+        let (x, d) = unsafe { (self.vec3s(p, n, rows, j), self.vec3s(dp, n, rows, j)) };
+        stepped::<Self, true>(self, x, d, a)
+    }
     /// Writes eight `Vec3` (24 floats) at `p` from their x, y and z lanes.
     ///
     /// # Safety
     /// 24 floats from `p` must be writable.
     unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]);
-    /// Lanes whose flag is set.
-    fn flags(self, p: &[bool]) -> Self::M;
+    /// Lanes whose sign bit is set (`-0.0` included).
+    fn negative(self, a: Self::F) -> Self::M;
     /// Eight f64 from an array.
     fn dfrom(self, a: [f64; 8]) -> Self::D;
     /// `3 i` per lane.
@@ -113,6 +134,10 @@ impl Lanes for Scalar {
         std::array::from_fn(|l| p[l])
     }
     #[inline(always)]
+    fn load_near(self, p: &[i16], base: u32) -> Self::I {
+        std::array::from_fn(|l| base.wrapping_add(p[l] as i32 as u32))
+    }
+    #[inline(always)]
     unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
         // SAFETY: the caller guarantees every index is in bounds.
         std::array::from_fn(|l| unsafe { *base.add(idx[l] as usize) })
@@ -128,9 +153,10 @@ impl Lanes for Scalar {
         std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(8 * l + c) }))
     }
     #[inline(always)]
-    unsafe fn vec3s(self, p: *const f32, _n: usize, idx: &[u32], _j: Self::I) -> [Self::F; 3] {
+    unsafe fn vec3s(self, p: *const f32, _n: usize, rows: &Rows, _j: Self::I) -> [Self::F; 3] {
         // SAFETY: the caller guarantees the indices are in bounds.
-        std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(3 * idx[l] as usize + c) }))
+        let p = unsafe { p.add(3 * rows.shift) };
+        std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.offset(rows.o[l]).add(c) }))
     }
     #[inline(always)]
     unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
@@ -142,8 +168,8 @@ impl Lanes for Scalar {
         }
     }
     #[inline(always)]
-    fn flags(self, p: &[bool]) -> Self::M {
-        std::array::from_fn(|l| p[l])
+    fn negative(self, a: Self::F) -> Self::M {
+        a.map(f32::is_sign_negative)
     }
     #[inline(always)]
     fn dfrom(self, a: [f64; 8]) -> Self::D {
@@ -265,6 +291,15 @@ mod avx2 {
             unsafe { _mm256_loadu_si256(p.as_ptr().cast()) }
         }
         #[inline(always)]
+        fn load_near(self, p: &[i16], base: u32) -> Self::I {
+            assert!(p.len() >= 8);
+            // SAFETY: eight values in bounds (asserted).
+            unsafe {
+                let wide = _mm256_cvtepi16_epi32(_mm_loadu_si128(p.as_ptr().cast()));
+                _mm256_add_epi32(wide, _mm256_set1_epi32(base as i32))
+            }
+        }
+        #[inline(always)]
         unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
             // SAFETY: the caller guarantees every index is in bounds.
             unsafe { _mm256_i32gather_ps::<4>(base, idx) }
@@ -324,26 +359,83 @@ mod avx2 {
             }
         }
         #[inline(always)]
-        unsafe fn vec3s(self, p: *const f32, n: usize, idx: &[u32], j: Self::I) -> [Self::F; 3] {
-            assert!(idx.len() >= 8);
+        unsafe fn vec3s(
+            self,
+            p: *const f32,
+            n: usize,
+            rows: &super::Rows,
+            j: Self::I,
+        ) -> [Self::F; 3] {
             // SAFETY: the caller guarantees every index is below n. Each vector is read as 16
             // bytes (x, y, z and the next vector's x) and eight of them are transposed: cheaper
             // than three gathers on CPUs with slow gathers. The last vector has no successor,
             // so a group that names it takes the gathers instead.
             unsafe {
                 let last = _mm256_set1_epi32(n as i32 - 1);
-                if _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0 {
+                if rows.may_name_last
+                    && _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0
+                {
                     return super::gather3(self, p, self.times3(j));
                 }
+                let p = p.add(3 * rows.shift);
                 macro_rules! row {
                     ($l:literal) => {
-                        _mm_loadu_ps(p.add(3 * *idx.get_unchecked($l) as usize))
+                        _mm_loadu_ps(p.offset(*rows.o.get_unchecked($l)))
                     };
                 }
                 let v0 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(0)), row!(4));
                 let v1 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(1)), row!(5));
                 let v2 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(2)), row!(6));
                 let v3 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(3)), row!(7));
+                let t0 = _mm256_unpacklo_ps(v0, v1);
+                let t1 = _mm256_unpackhi_ps(v0, v1);
+                let t2 = _mm256_unpacklo_ps(v2, v3);
+                let t3 = _mm256_unpackhi_ps(v2, v3);
+                [
+                    _mm256_shuffle_ps::<0x44>(t0, t2),
+                    _mm256_shuffle_ps::<0xEE>(t0, t2),
+                    _mm256_shuffle_ps::<0x44>(t1, t3),
+                ]
+            }
+        }
+        #[inline(always)]
+        unsafe fn vec3s_step(
+            self,
+            p: *const f32,
+            dp: *const f32,
+            a: Self::F,
+            n: usize,
+            rows: &super::Rows,
+            j: Self::I,
+        ) -> [Self::F; 3] {
+            // SAFETY: as in `vec3s`; the 16-byte rows of x and d are combined before the
+            // transpose (one transpose instead of two; the fourth float of each row, the next
+            // vector's x, is combined too and then dropped).
+            unsafe {
+                let last = _mm256_set1_epi32(n as i32 - 1);
+                if rows.may_name_last
+                    && _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0
+                {
+                    let (x, d) = (
+                        super::gather3(self, p, self.times3(j)),
+                        super::gather3(self, dp, self.times3(j)),
+                    );
+                    return super::stepped::<Self, true>(self, x, d, a);
+                }
+                let o = &rows.o;
+                let (p, dp) = (p.add(3 * rows.shift), dp.add(3 * rows.shift));
+                let pair = |lo: usize, hi: usize| {
+                    let x = _mm256_insertf128_ps::<1>(
+                        _mm256_castps128_ps256(_mm_loadu_ps(p.offset(o[lo]))),
+                        _mm_loadu_ps(p.offset(o[hi])),
+                    );
+                    let d = _mm256_insertf128_ps::<1>(
+                        _mm256_castps128_ps256(_mm_loadu_ps(dp.offset(o[lo]))),
+                        _mm_loadu_ps(dp.offset(o[hi])),
+                    );
+                    _mm256_add_ps(x, _mm256_mul_ps(d, a))
+                };
+                let (v0, v1, v2, v3) = (pair(0, 4), pair(1, 5), pair(2, 6), pair(3, 7));
                 let t0 = _mm256_unpacklo_ps(v0, v1);
                 let t1 = _mm256_unpackhi_ps(v0, v1);
                 let t2 = _mm256_unpacklo_ps(v2, v3);
@@ -372,12 +464,9 @@ mod avx2 {
             }
         }
         #[inline(always)]
-        fn flags(self, p: &[bool]) -> Self::M {
-            let bytes: [u8; 8] = std::array::from_fn(|l| p[l] as u8);
-            unsafe {
-                let wide = _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(i64::from_le_bytes(bytes)));
-                _mm256_castsi256_ps(_mm256_cmpgt_epi32(wide, _mm256_setzero_si256()))
-            }
+        fn negative(self, a: Self::F) -> Self::M {
+            // Masks only feed `blendv`, which reads the sign bit alone.
+            a
         }
         #[inline(always)]
         fn dfrom(self, a: [f64; 8]) -> Self::D {
@@ -543,9 +632,130 @@ const K_TANGENT: usize = offset_of!(VertexAnchor, k_tangent) / 4;
 pub(crate) struct ForceInputs<'a> {
     pub sell: &'a Sell,
     pub x: &'a [Vec3],
+    /// `Some((d, a))`: the forces are taken at `x + a d` (computed on the fly, the same f32
+    /// operations as [`advance`]).
+    pub step: Option<(&'a [Vec3], f32)>,
     pub anchors: Option<&'a [VertexAnchor]>,
     pub external: Option<&'a [Vec3]>,
-    pub pinned: &'a [bool],
+    /// The preconditioner weights (inverse diagonal) for the dot products; a negative weight
+    /// (`-0.0`) marks a pinned vertex, whose force is zeroed. `None`: no pins, no dot products.
+    pub w: Option<&'a [f32]>,
+}
+
+/// The other ends `j` of one entry's eight springs, decoded once for every array read at them:
+/// as float offsets `3 (j − shift)` (one per lane) from the floats of vertex `shift`, so that a
+/// 16-bit offset needs no addition per lane.
+pub(crate) struct Rows {
+    o: [isize; 8],
+    shift: usize,
+    /// Some lane may name the last vertex (whose 16-byte row would read past the end);
+    /// `false` for near slices, which never do (see [`Sell`]).
+    may_name_last: bool,
+}
+
+/// `v[e..e + 8]` without a bounds check.
+///
+/// # Safety
+/// `e + 8 <= v.len()`.
+#[inline(always)]
+unsafe fn eight<T>(v: &[T], e: usize) -> &[T] {
+    debug_assert!(e + LANES <= v.len());
+    // SAFETY: the caller's contract.
+    unsafe { v.get_unchecked(e..e + LANES) }
+}
+
+/// Checks the per-entry arrays of `sell` cover every slice's entries (`start` rises, by
+/// construction), so that `eight(.., e)` is in bounds for any entry `e` of any slice.
+#[inline(always)]
+fn assert_entries(sell: &Sell) {
+    let total = sell.start.last().map_or(0, |&t| t as usize);
+    assert!(sell.k.len() == total && sell.rest.len() == total && sell.near.len() == total);
+}
+
+/// Where the other ends of one slice's springs are stored (see [`Sell`]).
+trait Ends: Copy {
+    /// The other ends of entry `e` (of this slice) as lanes and as rows.
+    fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows);
+}
+
+/// A slice whose other ends are 16-bit offsets from its first vertex `base`.
+#[derive(Clone, Copy)]
+struct Near<'a> {
+    near: &'a [i16],
+    base: u32,
+}
+
+impl Ends for Near<'_> {
+    #[inline(always)]
+    fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows) {
+        // SAFETY: `e` is an entry of this slice (the caller's arrays checked).
+        let p = unsafe { eight(self.near, e) };
+        // Volatile reads keep the decode scalar (a sign-extending load and a multiply-by-3
+        // address per lane): vectorised, the compiler turns it into 64-bit vector arithmetic
+        // and extractions, which cost more.
+        let o = std::array::from_fn(|k| {
+            // SAFETY: eight offsets in bounds (sliced above).
+            3 * unsafe { p.as_ptr().add(k).read_volatile() } as isize
+        });
+        let rows = Rows {
+            o,
+            shift: self.base as usize,
+            may_name_last: false,
+        };
+        (l.load_near(p, self.base), rows)
+    }
+}
+
+/// A wide slice: full indices, `far[e - begin]` for entry `e`.
+#[derive(Clone, Copy)]
+struct Far<'a> {
+    far: &'a [u32],
+    begin: usize,
+}
+
+impl Ends for Far<'_> {
+    #[inline(always)]
+    fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows) {
+        let p = &self.far[e - self.begin..e - self.begin + LANES];
+        let rows = Rows {
+            o: std::array::from_fn(|k| 3 * p[k] as isize),
+            shift: 0,
+            may_name_last: true,
+        };
+        (l.load_i(p), rows)
+    }
+}
+
+/// Runs `$body` with `$ends` the [`Ends`] of slice `$s` (one instance per storage).
+macro_rules! with_ends {
+    ($sell:expr, $s:expr, $ends:ident => $body:expr) => {
+        match $sell.far_of($s) {
+            None => {
+                let $ends = Near {
+                    near: &$sell.near,
+                    base: ($s * LANES) as u32,
+                };
+                $body
+            }
+            Some(far) => {
+                let $ends = Far {
+                    far,
+                    begin: $sell.start[$s] as usize,
+                };
+                $body
+            }
+        }
+    };
+}
+
+/// `x + a d` per lane and component (`x` alone without a step).
+#[inline(always)]
+fn stepped<S: Lanes, const STEP: bool>(l: S, x: [S::F; 3], d: [S::F; 3], a: S::F) -> [S::F; 3] {
+    if STEP {
+        std::array::from_fn(|c| l.add(x[c], l.mul(d[c], a)))
+    } else {
+        x
+    }
 }
 
 /// The vertices of slice `s` (clamped to the last vertex past the end).
@@ -583,18 +793,34 @@ unsafe fn own_vec3<S: Lanes>(l: S, sell: &Sell, s: usize, own: S::I, v: &[Vec3])
     }
 }
 
-/// Net force (before pinning) and energy of the vertices of slice `s`.
+/// Net force (before pinning) and energy of the vertices of slice `s`, at `x` (`x + a d` with
+/// `STEP`).
 ///
 /// # Safety
 /// All arrays of `f` have `f.sell.n` entries and every spring index is below it.
 #[inline(always)]
-unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([S::F; 3], S::D) {
+unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
+    l: S,
+    f: &ForceInputs<'_>,
+    s: usize,
+    ends: E,
+) -> ([S::F; 3], S::D) {
     let sell = f.sell;
     let own = own_lanes(l, sell, s);
     let own3 = l.times3(own);
     let xp = f.x.as_ptr().cast::<f32>();
+    let (d, a) = f.step.unwrap_or((f.x, 0.0));
+    let (dp, a) = (d.as_ptr().cast::<f32>(), l.splat(a));
     // SAFETY (all gathers): indices below n, arrays of n entries (the caller's contract).
-    let [yx, yy, yz] = unsafe { own_vec3(l, sell, s, own, f.x) };
+    let [yx, yy, yz] = unsafe {
+        let x = own_vec3(l, sell, s, own, f.x);
+        let d = if STEP {
+            own_vec3(l, sell, s, own, d)
+        } else {
+            x
+        };
+        stepped::<S, STEP>(l, x, d, a)
+    };
     let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
     let zero = l.splat(0.0);
     let (one, half, tiny) = (l.splat(1.0), l.splat(0.5), l.splat(f32::MIN_POSITIVE));
@@ -603,23 +829,31 @@ unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([S::F; 
     let mut energy = l.dsplat(0.0);
     // One spring of every lane per step: force always, energy from the upper entries on
     // (springs to higher vertices only).
-    let upper = sell.upper[s] as usize;
+    let upper = sell.upper_entries(s).start;
     for e in sell.entries(s).step_by(LANES) {
-        let j = l.load_i(&sell.other[e..e + LANES]);
-        let k = l.load(&sell.k[e..e + LANES]);
-        let rest = l.load(&sell.rest[e..e + LANES]);
-        let idx = &sell.other[e..e + LANES];
-        // SAFETY: spring indices are below n, x has n entries.
-        let [zx, zy, zz] = unsafe { l.vec3s(xp, sell.n, idx, j) };
+        let (j, rows) = ends.at(l, e);
+        // SAFETY: `e` is an entry of slice `s` (asserted in bounds by the caller).
+        let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
+        // SAFETY: spring indices are below n, x and d have n entries.
+        let [zx, zy, zz] = unsafe {
+            if STEP {
+                l.vec3s_step(xp, dp, a, sell.n, &rows, j)
+            } else {
+                l.vec3s(xp, sell.n, &rows, j)
+            }
+        };
         let (ex, ey, ez) = (l.sub(zx, yx), l.sub(zy, yy), l.sub(zz, yz));
         let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
         let len = l.sqrt(l2);
         let inv = l.div(one, len);
         let ok = l.gt(len, tiny);
-        let c = l.mul(l.mul(k, l.sub(len, rest)), inv);
-        fx = l.select(ok, l.add(fx, l.mul(ex, c)), fx);
-        fy = l.select(ok, l.add(fy, l.mul(ey, c)), fy);
-        fz = l.select(ok, l.add(fz, l.mul(ez, c)), fz);
+        // A degenerate spring (no direction) adds nothing: its coefficient is zeroed, and
+        // `f + e·0` is `f` bit for bit (`e` is finite there, and a sum that starts at +0 is
+        // never −0), as if the spring were skipped.
+        let c = l.select(ok, l.mul(l.mul(k, l.sub(len, rest)), inv), zero);
+        fx = l.add(fx, l.mul(ex, c));
+        fy = l.add(fy, l.mul(ey, c));
+        fz = l.add(fz, l.mul(ez, c));
         if e < upper {
             continue;
         }
@@ -709,17 +943,18 @@ unsafe fn force_slice<S: Lanes>(l: S, f: &ForceInputs<'_>, s: usize) -> ([S::F; 
 /// One chunk of the force gather: vertices `first..first + r.len()` (a multiple of [`LANES`]
 /// apart from the last chunk), forces into `r`, partial sums returned.
 #[inline(always)]
-fn force_chunk<S: Lanes>(
+fn force_chunk<S: Lanes, const STEP: bool>(
     l: S,
     f: &ForceInputs<'_>,
     first: usize,
     r: &mut [Vec3],
-    w: Option<&[f32]>,
 ) -> Sums {
     let n = f.sell.n;
+    let w = f.w;
+    assert_entries(f.sell);
     assert!(
         f.x.len() == n
-            && f.pinned.len() == n
+            && f.step.is_none_or(|(d, _)| d.len() == n)
             && f.anchors.is_none_or(|a| a.len() == n)
             && f.external.is_none_or(|e| e.len() == n)
             && w.is_none_or(|w| w.len() == n)
@@ -732,27 +967,33 @@ fn force_chunk<S: Lanes>(
         (l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0));
     for (s, out) in (first / LANES..).zip(r.chunks_mut(LANES)) {
         // SAFETY: lengths asserted above; spring indices are below n by construction.
-        let ([fx, fy, fz], energy) = unsafe { force_slice(l, f, s) };
+        let ([fx, fy, fz], energy) =
+            with_ends!(f.sell, s, ends => unsafe { force_slice::<S, _, STEP>(l, f, s, ends) });
         let base = s * LANES;
         if out.len() == LANES {
-            let pinned = l.flags(&f.pinned[base..base + LANES]);
-            let (fx, fy, fz) = (
-                l.select(pinned, zero, fx),
-                l.select(pinned, zero, fy),
-                l.select(pinned, zero, fz),
-            );
             energy_acc = l.dadd(energy_acc, energy);
-            let ff = l.add(l.add(l.mul(fx, fx), l.mul(fy, fy)), l.mul(fz, fz));
-            rr = l.dadd(rr, l.widen(ff));
             let p = out.as_mut_ptr().cast::<f32>();
-            if let Some(w) = w {
+            let (fx, fy, fz) = if let Some(w) = w {
                 let w = l.load(&w[base..base + LANES]);
+                let pinned = l.negative(w);
+                let (fx, fy, fz) = (
+                    l.select(pinned, zero, fx),
+                    l.select(pinned, zero, fy),
+                    l.select(pinned, zero, fz),
+                );
+                let ff = l.add(l.add(l.mul(fx, fx), l.mul(fy, fy)), l.mul(fz, fz));
+                rr = l.dadd(rr, l.widen(ff));
                 // SAFETY: `out` holds eight vectors.
                 let [ox, oy, oz] = unsafe { l.load3(p) };
                 let fo = l.add(l.add(l.mul(fx, ox), l.mul(fy, oy)), l.mul(fz, oz));
                 rzr = l.dadd(rzr, l.widen(l.mul(w, ff)));
                 rz_old = l.dadd(rz_old, l.widen(l.mul(w, fo)));
-            }
+                (fx, fy, fz)
+            } else {
+                let ff = l.add(l.add(l.mul(fx, fx), l.mul(fy, fy)), l.mul(fz, fz));
+                rr = l.dadd(rr, l.widen(ff));
+                (fx, fy, fz)
+            };
             // SAFETY: `out` holds eight vectors.
             unsafe { l.store3(p, [fx, fy, fz]) };
             continue;
@@ -762,7 +1003,7 @@ fn force_chunk<S: Lanes>(
         let (mut e8, mut rr8, mut rzr8, mut rzo8) = ([0.0f64; 8], [0.0f64; 8], [0.0; 8], [0.0; 8]);
         for (lane, slot) in out.iter_mut().enumerate() {
             let i = base + lane;
-            let force = if f.pinned[i] {
+            let force = if w.is_some_and(|w| w[i].is_sign_negative()) {
                 Vec3::ZERO
             } else {
                 Vec3::new(fx[lane], fy[lane], fz[lane])
@@ -792,43 +1033,57 @@ fn force_chunk<S: Lanes>(
     }
 }
 
+/// [`force_chunk`] with the step known at compile time.
+#[inline(always)]
+fn force_chunk_any<S: Lanes>(l: S, f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
+    if f.step.is_some() {
+        force_chunk::<S, true>(l, f, first, r)
+    } else {
+        force_chunk::<S, false>(l, f, first, r)
+    }
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn force_chunk_avx2(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3], w: Option<&[f32]>) -> Sums {
-    force_chunk(avx2::Avx2, f, first, r, w)
+fn force_chunk_avx2(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
+    force_chunk_any(avx2::Avx2, f, first, r)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,avx512f")]
-fn force_chunk_avx512(
-    f: &ForceInputs<'_>,
-    first: usize,
-    r: &mut [Vec3],
-    w: Option<&[f32]>,
-) -> Sums {
-    force_chunk(avx512::Avx512, f, first, r, w)
+fn force_chunk_avx512(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
+    force_chunk_any(avx512::Avx512, f, first, r)
 }
 
 impl ForceInputs<'_> {
     /// Forces of vertices `first..first + r.len()` into `r`, with the chunk's partial sums.
-    pub fn chunk(&self, isa: Isa, first: usize, r: &mut [Vec3], w: Option<&[f32]>) -> Sums {
+    pub fn chunk(&self, isa: Isa, first: usize, r: &mut [Vec3]) -> Sums {
         match isa {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Isa::Avx2` is only returned after the CPU check.
-            Isa::Avx2 => unsafe { force_chunk_avx2(self, first, r, w) },
+            Isa::Avx2 => unsafe { force_chunk_avx2(self, first, r) },
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2 and AVX-512F).
-            Isa::Avx512 => unsafe { force_chunk_avx512(self, first, r, w) },
-            _ => force_chunk(Scalar, self, first, r, w),
+            Isa::Avx512 => unsafe { force_chunk_avx512(self, first, r) },
+            _ => force_chunk_any(Scalar, self, first, r),
         }
     }
 }
 
-/// The direction update `d = w·r + β d` of one chunk; returns `Σ r·d` summed in vertex order
-/// (the same operations as the plain loop, eight vertices at a time).
+/// The direction update `d = w·r + β d` of one chunk, after advancing `x += a d` (with the old
+/// `d`) for `step = Some((x, a))`; returns `Σ r·d` summed in vertex order (the same operations
+/// as the plain loop, eight vertices at a time).
 #[inline(always)]
-fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
+fn direction_chunk<S: Lanes>(
+    l: S,
+    d: &mut [Vec3],
+    r: &[Vec3],
+    w: &[f32],
+    beta: f32,
+    mut step: Option<(&mut [Vec3], f32)>,
+) -> f64 {
     assert!(r.len() == d.len() && w.len() == d.len());
+    assert!(step.as_ref().is_none_or(|(x, _)| x.len() == d.len()));
     let full = d.len() / LANES * LANES;
     let b = l.splat(beta);
     let mut slope = 0.0f64;
@@ -839,6 +1094,14 @@ fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: 
         );
         // SAFETY: eight vectors from `o < full` are in bounds of `r` and `d`.
         let ([rx, ry, rz], [dx, dy, dz]) = unsafe { (l.load3(rp), l.load3(dp)) };
+        if let Some((x, a)) = step.as_mut() {
+            let xp = x[o..].as_mut_ptr().cast::<f32>();
+            // SAFETY: eight vectors from `o` are in bounds of `x` (same length as `d`).
+            unsafe {
+                let moved = stepped::<S, true>(l, l.load3(xp), [dx, dy, dz], l.splat(*a));
+                l.store3(xp, moved);
+            }
+        }
         let wv = l.load(&w[o..o + LANES]);
         let nx = l.add(l.mul(rx, wv), l.mul(dx, b));
         let ny = l.add(l.mul(ry, wv), l.mul(dy, b));
@@ -851,6 +1114,9 @@ fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: 
         }
     }
     for i in full..d.len() {
+        if let Some((x, a)) = step.as_mut() {
+            x[i] += d[i] * *a;
+        }
         d[i] = r[i] * w[i] + d[i] * beta;
         slope += r[i].dot(d[i]) as f64;
     }
@@ -859,18 +1125,69 @@ fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: 
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn direction_chunk_avx2(d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
-    direction_chunk(avx2::Avx2, d, r, w, beta)
+fn direction_chunk_avx2(
+    d: &mut [Vec3],
+    r: &[Vec3],
+    w: &[f32],
+    beta: f32,
+    step: Option<(&mut [Vec3], f32)>,
+) -> f64 {
+    direction_chunk(avx2::Avx2, d, r, w, beta, step)
 }
 
-/// `d = w·r + β d` over one chunk, returning `Σ r·d` in vertex order (see
-/// [`super::kernels::update_direction`]).
-pub(crate) fn direction(isa: Isa, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
+/// `d = w·r + β d` over one chunk (after `x += a d` for `step = Some((x, a))`), returning
+/// `Σ r·d` in vertex order (see [`super::kernels::update_direction`]).
+pub(crate) fn direction(
+    isa: Isa,
+    d: &mut [Vec3],
+    r: &[Vec3],
+    w: &[f32],
+    beta: f32,
+    step: Option<(&mut [Vec3], f32)>,
+) -> f64 {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only returned after the AVX2 check.
-        Isa::Avx2 | Isa::Avx512 => unsafe { direction_chunk_avx2(d, r, w, beta) },
-        _ => direction_chunk(Scalar, d, r, w, beta),
+        Isa::Avx2 | Isa::Avx512 => unsafe { direction_chunk_avx2(d, r, w, beta, step) },
+        _ => direction_chunk(Scalar, d, r, w, beta, step),
+    }
+}
+
+/// `x += a d` over one chunk (the same f32 operations as a gather's `step`).
+#[inline(always)]
+fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32) {
+    assert!(x.len() == d.len());
+    let full = x.len() / LANES * LANES;
+    let av = l.splat(a);
+    for o in (0..full).step_by(LANES) {
+        let (xp, dp) = (
+            x[o..].as_mut_ptr().cast::<f32>(),
+            d[o..].as_ptr().cast::<f32>(),
+        );
+        // SAFETY: eight vectors from `o < full` are in bounds of `x` and `d`.
+        unsafe {
+            let moved = stepped::<S, true>(l, l.load3(xp), l.load3(dp), av);
+            l.store3(xp, moved);
+        }
+    }
+    for i in full..x.len() {
+        x[i] += d[i] * a;
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn advance_chunk_avx2(x: &mut [Vec3], d: &[Vec3], a: f32) {
+    advance_chunk(avx2::Avx2, x, d, a)
+}
+
+/// `x += a d` over one chunk.
+pub(crate) fn advance(isa: Isa, x: &mut [Vec3], d: &[Vec3], a: f32) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only returned after the AVX2 check.
+        Isa::Avx2 | Isa::Avx512 => unsafe { advance_chunk_avx2(x, d, a) },
+        _ => advance_chunk(Scalar, x, d, a),
     }
 }
 
@@ -885,6 +1202,7 @@ fn curvature_chunk<S: Lanes>(
     slices: std::ops::Range<usize>,
 ) -> f64 {
     let n = sell.n;
+    assert_entries(sell);
     assert!(
         x.len() == n
             && d.len() == n
@@ -903,15 +1221,15 @@ fn curvature_chunk<S: Lanes>(
         // SAFETY (all gathers): indices below n, x and d of n entries (asserted).
         let [xx, xy, xz] = unsafe { own_vec3(l, sell, s, own, x) };
         let [dx, dy, dz] = unsafe { own_vec3(l, sell, s, own, d) };
-        let mut vertex = zero;
+        let vertex = with_ends!(sell, s, ends => {
+            let mut vertex = zero;
         for e in sell.upper_entries(s).step_by(LANES) {
-            let j = l.load_i(&sell.other[e..e + LANES]);
-            let k = l.load(&sell.k[e..e + LANES]);
-            let rest = l.load(&sell.rest[e..e + LANES]);
-            let idx = &sell.other[e..e + LANES];
+            let (j, rows) = ends.at(l, e);
+            // SAFETY: `e` is an entry of slice `s` (its arrays checked above).
+            let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
             // SAFETY: spring indices are below n, x and d have n entries.
-            let [zx, zy, zz] = unsafe { l.vec3s(xp, n, idx, j) };
-            let [vx, vy, vz] = unsafe { l.vec3s(dp, n, idx, j) };
+            let [zx, zy, zz] = unsafe { l.vec3s(xp, n, &rows, j) };
+            let [vx, vy, vz] = unsafe { l.vec3s(dp, n, &rows, j) };
             let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));
             let (ux, uy, uz) = (l.sub(vx, dx), l.sub(vy, dy), l.sub(vz, dz));
             let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
@@ -926,6 +1244,8 @@ fn curvature_chunk<S: Lanes>(
             let term = l.select(l.le(l2, tiny2), l.mul(k, uu), term);
             vertex = l.select(l.gt_i(j, own), l.add(vertex, term), vertex);
         }
+            vertex
+        });
         let valid = (s + 1) * LANES <= n;
         if valid {
             acc = l.dadd(acc, l.widen(vertex));
@@ -1152,24 +1472,126 @@ mod tests {
             system.to_internal(&ext),
             system.to_internal(&pinned),
         );
-        let (want, want_energy) = reference(sell, &xi, &ai, &ei, &pi);
+        let w = weights(&pi);
+        // The gather at `x` and the gather at `x0 + a d` with `x0 + a d == x` (computed the
+        // plain way) must both reproduce the reference at `x`.
+        let d: Vec<Vec3> = (0..sell.n)
+            .map(|i| Vec3::new((i as f32 * 0.7).sin(), (i as f32 * 0.3).cos(), 0.2) * 1e-3)
+            .collect();
+        let a = 0.37f32;
+        let x0: Vec<Vec3> = xi.iter().map(|x| *x * 0.999).collect();
+        let stepped: Vec<Vec3> = x0.iter().zip(&d).map(|(x, d)| *x + *d * a).collect();
+        for (x, step, at) in [(&xi, None, &xi), (&x0, Some((d.as_slice(), a)), &stepped)] {
+            let (want, want_energy) = reference(sell, at, &ai, &ei, &pi);
+            for isa in isas() {
+                let inputs = ForceInputs {
+                    sell,
+                    x,
+                    step,
+                    anchors: Some(&ai),
+                    external: Some(&ei),
+                    w: Some(&w),
+                };
+                let mut r = vec![Vec3::ZERO; sell.n];
+                let sums = inputs.chunk(isa, 0, &mut r);
+                let bits = |v: &Vec3| v.to_array().map(f32::to_bits);
+                for (i, (got, want)) in r.iter().zip(&want).enumerate() {
+                    assert_eq!(bits(got), bits(want), "{isa:?}: force of vertex {i}");
+                }
+                assert_eq!(sums.energy.to_bits(), want_energy.to_bits(), "{isa:?}");
+                assert!(r.iter().zip(&pi).all(|(f, p)| !p || *f == Vec3::ZERO));
+                assert!(pi.iter().any(|p| *p));
+            }
+        }
+    }
+
+    /// Inverse-diagonal-like weights with the pin flags as their sign.
+    fn weights(pinned: &[bool]) -> Vec<f32> {
+        (0..pinned.len())
+            .map(|i| {
+                if pinned[i] {
+                    -0.0
+                } else {
+                    1.0 / (3.0 + i as f32)
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn wide_slices_match_the_plain_loop_bit_for_bit() {
+        // A zigzag strip of 80 000 vertices plus long springs: the slices they touch keep full
+        // indices (beyond a 16-bit offset), the others 16-bit offsets.
+        let n = 80_000u32;
+        let pos: Vec<Vec3> = (0..n)
+            .map(|i| Vec3::new(i as f32 * 1e-3, (i % 2) as f32 * 1e-3, 0.0))
+            .collect();
+        let mut edges: Vec<[u32; 2]> = (0..n - 1).map(|i| [i, i + 1]).collect();
+        edges.extend((0..n - 2).step_by(2).map(|i| [i, i + 2]));
+        edges.extend((0..40).map(|i| [i * 7, n - 1 - i * 997]));
+        let k: Vec<f32> = (0..edges.len()).map(|e| 10.0 + (e % 7) as f32).collect();
+        let rest: Vec<f32> = edges
+            .iter()
+            .map(|&[a, b]| pos[a as usize].distance(pos[b as usize]) * 0.9)
+            .collect();
+        let system = SpringSystem::new(&pos, &edges, &k, &rest).unwrap();
+        let sell = &system.sell;
+        assert!(!sell.wide.is_empty() && sell.wide.len() < sell.slices() / 10);
+        let x: Vec<Vec3> = (0..n as usize)
+            .map(|i| system.to_internal(&pos)[i] + Vec3::splat((i as f32).sin() * 1e-4))
+            .collect();
+        let d: Vec<Vec3> = (0..n as usize)
+            .map(|i| Vec3::new((i as f32 * 0.7).sin(), 0.1, (i as f32 * 0.3).cos()) * 1e-3)
+            .collect();
+        let none = vec![false; n as usize];
+        let zero = vec![Vec3::ZERO; n as usize];
+        let free = vec![VertexAnchor::default(); n as usize];
+        let (want, want_energy) = reference(sell, &x, &free, &zero, &none);
         for isa in isas() {
             let inputs = ForceInputs {
                 sell,
-                x: &xi,
-                anchors: Some(&ai),
-                external: Some(&ei),
-                pinned: &pi,
+                x: &x,
+                step: None,
+                anchors: None,
+                external: None,
+                w: None,
             };
             let mut r = vec![Vec3::ZERO; sell.n];
-            let sums = inputs.chunk(isa, 0, &mut r, None);
+            let sums = inputs.chunk(isa, 0, &mut r);
+            let bits = |v: &Vec3| v.to_array().map(f32::to_bits);
             for (i, (got, want)) in r.iter().zip(&want).enumerate() {
-                let bits = |v: &Vec3| v.to_array().map(f32::to_bits);
                 assert_eq!(bits(got), bits(want), "{isa:?}: force of vertex {i}");
             }
             assert_eq!(sums.energy.to_bits(), want_energy.to_bits(), "{isa:?}");
-            assert!(r.iter().zip(&pi).all(|(f, p)| !p || *f == Vec3::ZERO));
+            let got = curvature(isa, sell, &x, &d, None, 0..sell.slices());
+            let scalar = curvature(Isa::Scalar, sell, &x, &d, None, 0..sell.slices());
+            assert_eq!(got.to_bits(), scalar.to_bits(), "{isa:?}");
         }
+        // The curvature against the plain loop over the springs.
+        let mut lanes = [0.0f64; 8];
+        for i in 0..sell.n {
+            let mut vertex = 0.0f32;
+            for s in sell.springs_of(i).filter(|s| s.other as usize > i) {
+                vertex +=
+                    spring_curvature(&s, x[s.other as usize] - x[i], d[s.other as usize] - d[i]);
+            }
+            lanes[i % 8] += vertex as f64;
+        }
+        let want = lanes.iter().fold(0.0f64, |a, b| a + b);
+        let got = curvature(Isa::Scalar, sell, &x, &d, None, 0..sell.slices());
+        assert_eq!(got.to_bits(), want.to_bits());
+    }
+
+    /// `dᵀ H d` of one spring along `e` for the relative displacement `u`, the plain way.
+    fn spring_curvature(s: &crate::solver::Spring, e: Vec3, u: Vec3) -> f32 {
+        let l2 = e.length_squared();
+        if l2 <= f32::MIN_POSITIVE * f32::MIN_POSITIVE {
+            return s.k * u.length_squared();
+        }
+        let inv_len = 1.0 / l2.sqrt();
+        let along = e.dot(u) * inv_len;
+        let transverse = (u.length_squared() - along * along).max(0.0);
+        s.k * (along * along + (1.0 - s.rest * inv_len).max(0.0) * transverse)
     }
 
     #[test]
@@ -1191,15 +1613,28 @@ mod tests {
             want_d[i] = r[i] * w[i] + want_d[i] * beta;
             want += r[i].dot(want_d[i]) as f64;
         }
+        let x0: Vec<Vec3> = (0..n).map(|i| v(i, 0.53)).collect();
+        let a = 0.0371f32;
+        let want_x: Vec<Vec3> = x0.iter().zip(&d0).map(|(x, d)| *x + *d * a).collect();
+        let bits = |v: &Vec3| v.to_array().map(f32::to_bits);
         for isa in isas() {
-            let mut d = d0.clone();
-            let got = direction(isa, &mut d, &r, &w, beta);
-            assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
-            for (a, b) in d.iter().zip(&want_d) {
-                assert_eq!(
-                    a.to_array().map(f32::to_bits),
-                    b.to_array().map(f32::to_bits)
-                );
+            for fused in [false, true] {
+                let (mut d, mut x) = (d0.clone(), x0.clone());
+                let step = fused.then_some((x.as_mut_slice(), a));
+                let got = direction(isa, &mut d, &r, &w, beta, step);
+                assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
+                for (a, b) in d.iter().zip(&want_d) {
+                    assert_eq!(bits(a), bits(b));
+                }
+                let want_x = if fused { &want_x } else { &x0 };
+                for (a, b) in x.iter().zip(want_x) {
+                    assert_eq!(bits(a), bits(b), "{isa:?}");
+                }
+            }
+            let mut x = x0.clone();
+            advance(isa, &mut x, &d0, a);
+            for (a, b) in x.iter().zip(&want_x) {
+                assert_eq!(bits(a), bits(b), "{isa:?}");
             }
         }
     }
@@ -1217,17 +1652,8 @@ mod tests {
         for i in 0..sell.n {
             let mut vertex = 0.0f32;
             for s in sell.springs_of(i).filter(|s| s.other as usize > i) {
-                let e = xi[s.other as usize] - xi[i];
-                let u = d[s.other as usize] - d[i];
-                let l2 = e.length_squared();
-                if l2 <= f32::MIN_POSITIVE * f32::MIN_POSITIVE {
-                    vertex += s.k * u.length_squared();
-                    continue;
-                }
-                let inv_len = 1.0 / l2.sqrt();
-                let along = e.dot(u) * inv_len;
-                let transverse = (u.length_squared() - along * along).max(0.0);
-                vertex += s.k * (along * along + (1.0 - s.rest * inv_len).max(0.0) * transverse);
+                let (e, u) = (xi[s.other as usize] - xi[i], d[s.other as usize] - d[i]);
+                vertex += spring_curvature(&s, e, u);
             }
             lanes[i % 8] += vertex as f64;
             lanes[i % 8] += ai[i].curvature(d[i]) as f64;

@@ -35,6 +35,10 @@ impl Lanes for Avx512 {
         A.load_i(p)
     }
     #[inline(always)]
+    fn load_near(self, p: &[i16], base: u32) -> Self::I {
+        A.load_near(p, base)
+    }
+    #[inline(always)]
     unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
         // SAFETY: the caller's contract.
         unsafe { A.gather(base, idx) }
@@ -50,9 +54,22 @@ impl Lanes for Avx512 {
         unsafe { A.load8x8(p) }
     }
     #[inline(always)]
-    unsafe fn vec3s(self, p: *const f32, n: usize, idx: &[u32], j: Self::I) -> [Self::F; 3] {
+    unsafe fn vec3s(self, p: *const f32, n: usize, rows: &super::Rows, j: Self::I) -> [Self::F; 3] {
         // SAFETY: the caller's contract.
-        unsafe { A.vec3s(p, n, idx, j) }
+        unsafe { A.vec3s(p, n, rows, j) }
+    }
+    #[inline(always)]
+    unsafe fn vec3s_step(
+        self,
+        p: *const f32,
+        dp: *const f32,
+        a: Self::F,
+        n: usize,
+        rows: &super::Rows,
+        j: Self::I,
+    ) -> [Self::F; 3] {
+        // SAFETY: the caller's contract.
+        unsafe { A.vec3s_step(p, dp, a, n, rows, j) }
     }
     #[inline(always)]
     unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
@@ -60,8 +77,8 @@ impl Lanes for Avx512 {
         unsafe { A.store3(p, v) }
     }
     #[inline(always)]
-    fn flags(self, p: &[bool]) -> Self::M {
-        A.flags(p)
+    fn negative(self, a: Self::F) -> Self::M {
+        A.negative(a)
     }
     #[inline(always)]
     fn dfrom(self, a: [f64; 8]) -> Self::D {
