@@ -122,65 +122,55 @@ pub fn relax_frame(
     schedule: &FrameSchedule,
 ) -> Result<FrameRelax, FrameError> {
     // One job on the rayon pool for the whole frame (see `SpringSystem::relax_projected`).
-    rayon::scope(|_| frame_on_pool(system, collision, x, loads, config, schedule))
-}
-
-/// [`relax_frame`], on a worker of the rayon pool.
-fn frame_on_pool(
-    system: &SpringSystem,
-    collision: &mut SkinCollision,
-    x: &mut [Vec3],
-    loads: &Loads<'_>,
-    config: &RelaxConfig,
-    schedule: &FrameSchedule,
-) -> Result<FrameRelax, FrameError> {
-    let t = Instant::now();
-    collision.clear_query_cache();
-    let plan = collision.begin_frame(x)?;
-    let mut contact_time = t.elapsed();
-    let substeps = plan.substeps.max(1);
-    let intermediate = schedule
-        .substep_iterations
-        .min((config.max_iterations / (2 * substeps)).max(1));
-    let last = config
-        .max_iterations
-        .saturating_sub(intermediate * (substeps - 1))
-        .max(1);
-    let mut iterations = 0;
-    let mut last_report = None;
-    for s in 0..substeps {
+    rayon::scope(|_| {
         let t = Instant::now();
-        collision.substep(x)?;
-        contact_time += t.elapsed();
-        let max_iterations = if s + 1 == substeps {
-            last
-        } else {
-            intermediate
-        };
-        if max_iterations == 0 {
-            continue;
+        collision.clear_query_cache();
+        let plan = collision.begin_frame(x)?;
+        let mut contact_time = t.elapsed();
+        let substeps = plan.substeps.max(1);
+        let intermediate = schedule
+            .substep_iterations
+            .min((config.max_iterations / (2 * substeps)).max(1));
+        let last = config
+            .max_iterations
+            .saturating_sub(intermediate * (substeps - 1))
+            .max(1);
+        let mut iterations = 0;
+        let mut last_report = None;
+        for s in 0..substeps {
+            let t = Instant::now();
+            collision.substep(x)?;
+            contact_time += t.elapsed();
+            let max_iterations = if s + 1 == substeps {
+                last
+            } else {
+                intermediate
+            };
+            if max_iterations == 0 {
+                continue;
+            }
+            let sub_config = RelaxConfig {
+                max_iterations,
+                ..*config
+            };
+            let mut timed = Timed {
+                inner: collision,
+                spent: Duration::ZERO,
+            };
+            let report = system.relax_projected(x, loads, &sub_config, Some(&mut timed))?;
+            contact_time += timed.spent;
+            iterations += report.iterations;
+            last_report = Some(report);
         }
-        let sub_config = RelaxConfig {
-            max_iterations,
-            ..*config
-        };
-        let mut timed = Timed {
-            inner: collision,
-            spent: Duration::ZERO,
-        };
-        let report = system.relax_projected(x, loads, &sub_config, Some(&mut timed))?;
-        contact_time += timed.spent;
-        iterations += report.iterations;
-        last_report = Some(report);
-    }
-    let report = last_report.expect("the last substep always relaxes");
-    Ok(FrameRelax {
-        report: RelaxReport {
-            iterations,
-            ..report
-        },
-        substeps,
-        contact_time,
+        let report = last_report.expect("the last substep always relaxes");
+        Ok(FrameRelax {
+            report: RelaxReport {
+                iterations,
+                ..report
+            },
+            substeps,
+            contact_time,
+        })
     })
 }
 
