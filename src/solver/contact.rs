@@ -33,6 +33,33 @@ impl Held {
     }
 }
 
+/// `Γ` of the proportioning test in [`ContactSet::constrain`]: held contacts that pull away are
+/// released when their (preconditioned) force exceeds `Γ` times the free residual. 1 is
+/// MPRGP's usual choice; 0.5 and 2 ran about as well on the bench's arm.
+pub(crate) const PROPORTIONING: f64 = 1.0;
+
+/// What [`ContactSet::constrain`] changed.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Constrained {
+    /// A contact is held that was not at the previous call (the directions must restart).
+    pub new_hold: bool,
+    /// The pulling contacts were released (a proportioning step).
+    pub released: bool,
+    /// `Σ β²`: the squared outward forces of the held contacts that pull away, N².
+    pub chopped_rr: f64,
+}
+
+/// The held set [`ContactSet::decide`] chose, with its corrections to the sums.
+#[derive(Debug, Clone, Copy, Default)]
+struct Decision {
+    new_hold: bool,
+    released: bool,
+    delta_rr: f64,
+    delta_rzr: f64,
+    chopped_rr: f64,
+    chopped_rzr: f64,
+}
+
 /// The contacts a projection reported and the ones the solver holds.
 #[derive(Debug, Default)]
 pub(crate) struct ContactSet {
@@ -51,15 +78,53 @@ impl ContactSet {
         self.list.extend_from_slice(contacts);
     }
 
-    /// Decides which contacts hold their vertex (net force `r` pushing into the collider, i.e.
-    /// `r · n < 0`; the others are released), drops the held normal components from `r` (all of
-    /// `r` for a sticking contact) and corrects the sums `rr` and `rzr` of the force gather for
-    /// them. Returns `true` when a contact is held that was not held at the previous call (the
-    /// conjugate directions must restart).
-    pub fn constrain(&mut self, r: &mut [Vec3], w: &[f32], sums: &mut Sums) -> bool {
+    /// Decides which contacts hold their vertex, drops the held normal components from `r`
+    /// (all of `r` for a sticking contact) and corrects the sums `rr` and `rzr` of the force
+    /// gather for them.
+    ///
+    /// A contact whose net force `r` pushes into the collider (`r · n < 0`) is held. A contact
+    /// held at the previous call stays held even when its force now pulls it away: its
+    /// outward force `β` is then the *chopped* residual, which leaves `r` but is reported
+    /// apart (the convergence test counts it). Only when the chopped residual outweighs the
+    /// free one (`Σ w β² > Γ² Σ w r²`, [`PROPORTIONING`] `= Γ`) are all the pulling contacts
+    /// released at once: a proportioning step, as in Dostál's MPRGP. The caller restarts the
+    /// directions on a release as on a new hold. Releasing each contact as soon as its force turned (the old
+    /// policy) let the contacts at the rim of a patch, whose normal force is near zero, be held
+    /// and released every other iteration.
+    pub fn constrain(&mut self, r: &mut [Vec3], w: &[f32], sums: &mut Sums) -> Constrained {
         let mut previous = std::mem::take(&mut self.previous);
         previous.clear();
         previous.extend(self.held.iter().map(|h| (h.vertex, h.mask)));
+        let mut out = self.decide(r, w, &previous, false);
+        let free_rzr = (sums.rzr + out.delta_rzr).max(0.0);
+        if out.chopped_rzr > PROPORTIONING * PROPORTIONING * free_rzr {
+            out = self.decide(r, w, &previous, true);
+            out.released = true;
+        }
+        for h in &self.held {
+            let v = &mut r[h.vertex as usize];
+            *v = h.tangent(*v);
+        }
+        sums.rr = (sums.rr + out.delta_rr).max(0.0);
+        sums.rzr = (sums.rzr + out.delta_rzr).max(0.0);
+        self.previous = previous;
+        Constrained {
+            new_hold: out.new_hold,
+            released: out.released,
+            chopped_rr: out.chopped_rr,
+        }
+    }
+
+    /// The held set for the force `r` (see [`constrain`](Self::constrain)); `release`: hold
+    /// only the contacts pushed in.
+    fn decide(
+        &mut self,
+        r: &[Vec3],
+        w: &[f32],
+        previous: &[(u32, u32)],
+        release: bool,
+    ) -> Decision {
+        let mut out = Decision::default();
         self.held.clear();
         self.held_flags.clear();
         self.held_flags.resize(self.list.len(), false);
@@ -74,6 +139,10 @@ impl ContactSet {
                 k = end;
                 continue;
             };
+            let prev_mask = previous
+                .binary_search_by_key(&vertex, |p| p.0)
+                .map_or(0, |i| previous[i].1);
+            let before = if release { 0 } else { prev_mask };
             let mut held = Held {
                 vertex,
                 mask: 0,
@@ -81,12 +150,18 @@ impl ContactSet {
                 count: 0,
                 stick: false,
             };
+            let mut chopped = 0.0f32;
             for (j, c) in self.list[k..end].iter().enumerate() {
-                if f.dot(c.normal) >= 0.0 {
-                    continue;
+                let bit = 1 << j.min(31);
+                let push = f.dot(c.normal);
+                if push >= 0.0 {
+                    if before & bit == 0 {
+                        continue;
+                    }
+                    chopped += push * push;
                 }
                 self.held_flags[k + j] = true;
-                held.mask |= 1 << j.min(31);
+                held.mask |= bit;
                 held.stick |= c.stick;
                 if held.count < 3 {
                     let mut n = c.normal;
@@ -104,28 +179,16 @@ impl ContactSet {
                 let g = held.tangent(f);
                 let wi = w[vertex as usize];
                 let (ff, gg) = (f.dot(f), g.dot(g));
-                sums.rr += gg as f64 - ff as f64;
-                sums.rzr += (wi * gg) as f64 - (wi * ff) as f64;
-                r[vertex as usize] = g;
+                out.delta_rr += gg as f64 - ff as f64;
+                out.delta_rzr += (wi * gg) as f64 - (wi * ff) as f64;
+                out.chopped_rr += chopped as f64;
+                out.chopped_rzr += (wi * chopped) as f64;
+                out.new_hold |= prev_mask & held.mask != held.mask;
                 self.held.push(held);
             }
             k = end;
         }
-        sums.rr = sums.rr.max(0.0);
-        sums.rzr = sums.rzr.max(0.0);
-        // A vertex newly held loses the normal part of the old direction, whose conjugacy
-        // then means nothing: restart. A released one only gains freedom (its normal force
-        // enters through the residual): keep the direction. Restarting on releases too makes
-        // the contacts at the rim of a contact patch, whose normal force is near zero,
-        // restart the solve over and over (a draped sheet then stalls at 2e-3 instead of
-        // converging).
-        let changed = self.held.iter().any(|h| {
-            previous
-                .binary_search_by_key(&h.vertex, |p| p.0)
-                .map_or(true, |k| previous[k].1 & h.mask != h.mask)
-        });
-        self.previous = previous;
-        changed
+        out
     }
 
     /// Re-applies the held set's projection to a force `r` gathered again at the same point.
@@ -147,5 +210,69 @@ impl ContactSet {
             d[i] = t;
         }
         delta
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn contact(vertex: u32) -> ActiveContact {
+        ActiveContact {
+            vertex,
+            normal: Vec3::Z,
+            stick: false,
+        }
+    }
+
+    fn sums(r: &[Vec3]) -> Sums {
+        let rr: f64 = r.iter().map(|v| f64::from(v.length_squared())).sum();
+        Sums {
+            rr,
+            rzr: rr,
+            ..Sums::default()
+        }
+    }
+
+    /// A contact held once stays held while its force turns to pull it off only slightly (the
+    /// pull is reported as chopped residual, not released), and is released by a
+    /// proportioning step once that pull outweighs the rest of the residual.
+    #[test]
+    fn a_held_contact_is_released_only_when_its_pull_dominates() {
+        let mut set = ContactSet::default();
+        set.refresh(&[contact(0)]);
+        let w = [1.0, 1.0];
+        // Pushed into the collider: held, its normal force leaves the residual.
+        let mut r = vec![Vec3::new(0.5, 0.0, -1.0), Vec3::new(1.0, 0.0, 0.0)];
+        let mut s = sums(&r);
+        let c = set.constrain(&mut r, &w, &mut s);
+        assert!(c.new_hold && !c.released && set.held_flags == [true]);
+        assert_eq!(r[0], Vec3::new(0.5, 0.0, 0.0));
+        assert!((s.rr - 1.25).abs() < 1e-12 && c.chopped_rr == 0.0);
+
+        // Now pulled off by 0.1 N while 1 N acts elsewhere: still held (the old policy
+        // released it here and held it again at the next push, restarting each time).
+        let mut r = vec![Vec3::new(0.0, 0.0, 0.1), Vec3::new(1.0, 0.0, 0.0)];
+        let mut s = sums(&r);
+        let c = set.constrain(&mut r, &w, &mut s);
+        assert!(!c.new_hold && !c.released && set.held_flags == [true]);
+        assert_eq!(r[0], Vec3::ZERO);
+        assert!((c.chopped_rr - 0.01).abs() < 1e-9, "{}", c.chopped_rr);
+        assert!((s.rr - 1.0).abs() < 1e-9);
+
+        // The rest of the residual has gone: the pull dominates and the contact is released.
+        let mut r = vec![Vec3::new(0.0, 0.0, 0.1), Vec3::new(0.01, 0.0, 0.0)];
+        let mut s = sums(&r);
+        let c = set.constrain(&mut r, &w, &mut s);
+        assert!(c.released && !c.new_hold && set.held_flags == [false]);
+        assert_eq!(r[0], Vec3::new(0.0, 0.0, 0.1));
+        assert_eq!(c.chopped_rr, 0.0);
+        assert!((s.rr - (0.01 + 1e-4)).abs() < 1e-9);
+
+        // A contact never held is not held by a pull.
+        let mut r = vec![Vec3::new(0.0, 0.0, 0.1), Vec3::new(1.0, 0.0, 0.0)];
+        let mut s = sums(&r);
+        let c = set.constrain(&mut r, &w, &mut s);
+        assert!(!c.new_hold && !c.released && set.held_flags == [false]);
     }
 }

@@ -110,8 +110,10 @@ pub struct ActiveContact {
 /// A projection that reports its [`active_contacts`](Self::active_contacts) makes the solve
 /// converge on the contact set: for a contact whose net force pushes into the collider, the
 /// solver drops that normal component from the residual and the search direction (the contact
-/// takes it), so the conjugate gradients work in the tangent space of the contacts; a contact
-/// whose net force pulls it away is released. The default methods report no contacts: the
+/// takes it), so the conjugate gradients work in the tangent space of the contacts; held
+/// contacts whose net force pulls them away are released together once that pull outweighs the
+/// rest of the residual (MPRGP's proportioning; see the module documentation). The default
+/// methods report no contacts: the
 /// projection then only moves vertices, and a solve against it can stop only on its budget or
 /// a stall.
 ///
@@ -540,9 +542,12 @@ impl SpringSystem {
             p.project(&mut xi, &self.order);
         }
         let mut sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
+        // `Σ β²` of the held contacts that pull away (see `ContactSet::constrain`): part of the
+        // residual the convergence test sees, though not of the directions.
+        let mut chopped_rr = 0.0;
         if let Some(p) = projection.as_deref_mut() {
             contacts.refresh(p.active_contacts());
-            contacts.constrain(&mut r, &inv_diag, &mut sums);
+            chopped_rr = contacts.constrain(&mut r, &inv_diag, &mut sums).chopped_rr;
             p.hold(&contacts.held_flags);
         }
         let mut energy = sums.energy;
@@ -554,7 +559,7 @@ impl SpringSystem {
                 .collect();
             dot(&free, &free).sqrt()
         });
-        let mut r_norm = sums.rr.sqrt();
+        let mut r_norm = (sums.rr + chopped_rr).sqrt();
         let scale = config
             .force_scale
             .map(f64::from)
@@ -636,8 +641,8 @@ impl SpringSystem {
             }
             let Some((mut sums, step)) = accepted else {
                 let mut sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
-                contacts.constrain(&mut r, &inv_diag, &mut sums);
-                r_norm = sums.rr.sqrt();
+                let c = contacts.constrain(&mut r, &inv_diag, &mut sums);
+                r_norm = (sums.rr + c.chopped_rr).sqrt();
                 stop = StopReason::Stalled;
                 break;
             };
@@ -660,20 +665,28 @@ impl SpringSystem {
                     energy = sums.energy;
                 }
                 contacts.refresh(p.active_contacts());
-                restart = contacts.constrain(&mut r, &inv_diag, &mut sums);
+                let c = contacts.constrain(&mut r, &inv_diag, &mut sums);
+                chopped_rr = c.chopped_rr;
+                // The directions restart whenever the face changes: a newly held vertex loses
+                // the normal part of the old direction, whose conjugacy then means nothing, and
+                // a proportioning release lets the released contacts move along their full
+                // force. The proportioning keeps such changes rare: releasing every contact as
+                // soon as its force turned had the contacts at the rim of a patch held and
+                // dropped every other iteration, and a contact frame ran as steepest descent.
+                restart = c.released || c.new_hold;
                 p.hold(&contacts.held_flags);
             }
             if restart {
                 // A new contact is progress the residual does not show (it may jump up as
                 // the contact set changes): the stagnation window starts again.
                 best_at = iterations;
-                best = sums.rr.sqrt();
+                best = (sums.rr + chopped_rr).sqrt();
             }
             if config.record_energy {
                 history.push(energy);
             }
-            r_norm = sums.rr.sqrt();
-            // Polak-Ribiere+, preconditioned; restarted when the held contact set changes.
+            r_norm = (sums.rr + chopped_rr).sqrt();
+            // Polak-Ribiere+, preconditioned; restarted when contacts are released.
             let beta = if restart || rz <= 0.0 {
                 0.0
             } else {

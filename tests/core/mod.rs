@@ -2,6 +2,7 @@
 //! mesh, and the exact uniform expansion of Van Gelder's Fig. 4.
 
 mod cli;
+mod contact_set;
 
 use dermis::fem::{solve_linear_springs, solve_membrane};
 use dermis::paper::{
