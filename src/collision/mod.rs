@@ -240,7 +240,8 @@ pub struct ContactDiagnostics {
     pub substeps: u32,
     /// `true` when the last frame needed more than [`ContactConfig::max_substeps`] substeps.
     pub substeps_capped: bool,
-    /// `true` when a pass was handed positions of the wrong length (it then did nothing).
+    /// `true` when a pass was handed positions of the wrong length, or a projection an order
+    /// that is not a permutation of the vertices (it then did nothing).
     pub length_mismatch: bool,
 }
 
@@ -982,15 +983,21 @@ impl SkinCollision {
         total
     }
 
-    /// Makes `rank` the inverse of `order` (rebuilt only when the order changed).
-    fn rank_for(&mut self, order: &[u32]) {
+    /// Makes `rank` the inverse of `order` (rebuilt only when the order changed); `false` when
+    /// `order` is not a permutation of the vertices.
+    fn rank_for(&mut self, order: &[u32]) -> bool {
         if self.rank_of != order {
-            self.rank_of = order.to_vec();
-            self.rank = vec![0; order.len()];
+            self.rank_of.clear();
+            self.rank = vec![u32::MAX; order.len()];
             for (i, &o) in order.iter().enumerate() {
-                self.rank[o as usize] = i as u32;
+                match self.rank.get_mut(o as usize) {
+                    Some(r) if *r == u32::MAX => *r = i as u32,
+                    _ => return false,
+                }
             }
+            self.rank_of = order.to_vec();
         }
+        true
     }
 }
 
@@ -1005,18 +1012,22 @@ impl Projection for SkinCollision {
             self.diagnostics.length_mismatch = true;
             return false;
         }
+        if !self.rank_for(order) {
+            self.diagnostics.length_mismatch = true;
+            return false;
+        }
+        // The positions in the caller's order, gathered in parallel.
         let mut xc = std::mem::take(&mut self.scratch);
         xc.resize(n, Vec3::ZERO);
-        for (i, &o) in order.iter().enumerate() {
-            let Some(slot) = xc.get_mut(o as usize) else {
-                self.diagnostics.length_mismatch = true;
-                self.scratch = xc;
-                return false;
-            };
-            *slot = x[i];
-        }
+        let rank = &self.rank;
+        xc.par_chunks_mut(CHUNK)
+            .zip(rank.par_chunks(CHUNK))
+            .for_each(|(xs, rs)| {
+                for (p, &r) in xs.iter_mut().zip(rs) {
+                    *p = x[r as usize];
+                }
+            });
         let done = self.pass(&mut xc, true);
-        self.rank_for(order);
         for &o in &done.moved {
             x[self.rank[o as usize] as usize] = xc[o as usize];
         }

@@ -934,3 +934,26 @@ fn friction_carries_the_sheet_across_frames_with_the_query_cache_cleared() {
     other.set_friction_anchors(&anchors).unwrap();
     assert_eq!(other.friction_anchors(), anchors);
 }
+
+#[test]
+fn a_projection_order_that_is_not_a_permutation_is_refused_untouched() {
+    let mut skin = SkinCollision::new(3, ContactConfig::DEFAULT).unwrap();
+    skin.add_collider(ColliderMesh::ball(1.0).unwrap());
+    // Vertex 0 inside the ball: a real pass would move it.
+    let inside = vec![
+        Vec3::new(0.0, 0.0, 0.5),
+        Vec3::new(0.0, 0.0, 3.0),
+        Vec3::X * 4.0,
+    ];
+    for order in [vec![0, 0, 2], vec![0, 1, 7]] {
+        let mut x = inside.clone();
+        assert!(!skin.project(&mut x, &order));
+        assert_eq!(x, inside);
+        assert!(skin.diagnostics().length_mismatch);
+    }
+    // A permutation works: `x` is in its order, so the vertex inside is internal vertex 0.
+    let mut x = inside.clone();
+    assert!(skin.project(&mut x, &[2, 0, 1]));
+    assert!((x[0].length() - 1.002).abs() < 1e-5, "{}", x[0]);
+    assert_eq!(&x[1..], &inside[1..]);
+}
