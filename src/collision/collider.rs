@@ -94,6 +94,9 @@ pub struct ColliderMesh {
     /// Sum of surface-motion bounds over every state change, m (distance-bound cache).
     travel_m: f64,
     local_aabb: Aabb,
+    /// Which construction this is (clones share it): a contact cache measured against one
+    /// collider must not be trusted for another put in its place.
+    uid: u64,
 }
 
 impl ColliderMesh {
@@ -223,6 +226,10 @@ impl ColliderMesh {
             prev_pose: Pose::IDENTITY,
             travel_m: 0.0,
             local_aabb,
+            uid: {
+                static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+                NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+            },
         }
     }
 
@@ -296,6 +303,11 @@ impl ColliderMesh {
 
     pub(crate) fn travel_m(&self) -> f64 {
         self.travel_m
+    }
+
+    /// Identifies this collider's construction (see the field).
+    pub(crate) fn uid(&self) -> u64 {
+        self.uid
     }
 
     pub(crate) fn local_aabb(&self) -> &Aabb {

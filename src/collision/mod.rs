@@ -446,6 +446,9 @@ pub struct SkinCollision {
     /// internal index of caller's vertex `o`.
     rank: Vec<u32>,
     rank_of: Vec<u32>,
+    /// Each collider's identity and travel at the last pass (another identity or a smaller
+    /// travel means it was replaced).
+    travel_seen: Vec<(u64, f64)>,
 }
 
 /// The substeps of the frame in progress.
@@ -479,6 +482,7 @@ impl SkinCollision {
             last: vec![Vec3::NAN; vertex_count],
             rank: Vec::new(),
             rank_of: Vec::new(),
+            travel_seen: Vec::new(),
             states: vec![VertexState::NEW; vertex_count],
             slots: Vec::new(),
             scratch: Vec::new(),
@@ -921,6 +925,23 @@ impl SkinCollision {
             return ChunkPass::default();
         }
         let travel: Vec<f64> = self.colliders.iter().map(ColliderMesh::travel_m).collect();
+        // A collider's travel only grows, unless the collider was replaced in place (through
+        // `collider_mut`): then no cached bound measured against the old one holds.
+        let seen: Vec<(u64, f64)> = self
+            .colliders
+            .iter()
+            .map(|c| (c.uid(), c.travel_m()))
+            .collect();
+        if seen.len() == self.travel_seen.len()
+            && seen
+                .iter()
+                .zip(&self.travel_seen)
+                .any(|(now, before)| now.0 != before.0 || now.1 < before.1)
+        {
+            self.reach.fill(Reach::NEW);
+            self.slots.fill(Slot::NEW);
+        }
+        self.travel_seen = seen;
         let ctx = Ctx {
             colliders: &self.colliders,
             travel: &travel,

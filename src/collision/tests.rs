@@ -957,3 +957,23 @@ fn a_projection_order_that_is_not_a_permutation_is_refused_untouched() {
     assert!((x[0].length() - 1.002).abs() < 1e-5, "{}", x[0]);
     assert_eq!(&x[1..], &inside[1..]);
 }
+
+#[test]
+fn a_collider_replaced_in_place_is_seen_by_the_next_pass() {
+    // A vertex far from a small ball is skipped by its cached bounds; replacing the ball with a
+    // big one through `collider_mut` (its travel restarts) must not let the stale bounds hide it.
+    let config = ContactConfig {
+        thickness_m: 0.01,
+        ..ContactConfig::DEFAULT
+    };
+    let mut skin = SkinCollision::new(1, config).unwrap();
+    let id = skin.add_collider(ColliderMesh::ball(0.1).unwrap());
+    let order = [0u32];
+    let mut x = vec![Vec3::new(0.0, 0.0, 0.5)];
+    for _ in 0..3 {
+        assert!(!skin.project(&mut x, &order));
+    }
+    *skin.collider_mut(id).unwrap() = ColliderMesh::ball(1.0).unwrap();
+    assert!(skin.project(&mut x, &order));
+    assert!((x[0].z - 1.01).abs() < 1e-5, "{}", x[0]);
+}
