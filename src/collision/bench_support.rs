@@ -33,9 +33,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{CHUNK, SkinCollision};
-use crate::solver::Projection;
+use crate::solver::{ActiveContact, Projection};
 
-/// A [`Projection`] that times every call of the one it wraps.
+/// A [`Projection`] that times every call of the one it wraps. It forwards the active contacts
+/// and the held set, so a relaxation converges on the contact set exactly as without it
+/// ([`relax_frame`](super::relax_frame) times its projections with it).
 #[derive(Debug)]
 pub struct Timed<'a, P: Projection + ?Sized> {
     /// The wrapped projection.
@@ -64,6 +66,14 @@ impl<P: Projection + ?Sized> Projection for Timed<'_, P> {
         self.seconds += start.elapsed().as_secs_f64();
         self.calls += 1;
         moved
+    }
+
+    fn active_contacts(&self) -> &[ActiveContact] {
+        self.inner.active_contacts()
+    }
+
+    fn hold(&mut self, held: &[bool]) {
+        self.inner.hold(held);
     }
 }
 

@@ -5,11 +5,9 @@ use std::time::{Duration, Instant};
 use glam::Vec3;
 use thiserror::Error;
 
+use super::bench_support::Timed;
 use super::{CollisionError, SkinCollision};
-use crate::solver::{
-    ActiveContact, Loads, Projection, RelaxConfig, RelaxReport, SolverError, SpringSystem,
-    VertexAnchor,
-};
+use crate::solver::{Loads, RelaxConfig, RelaxReport, SolverError, SpringSystem, VertexAnchor};
 
 /// Relaxation iterations each intermediate substep of a frame gets by default
 /// ([`FrameSchedule::DEFAULT`]): none, the intermediate substeps run their contact pass only (no
@@ -63,29 +61,6 @@ pub enum FrameError {
     /// names.
     #[error(transparent)]
     Solver(#[from] SolverError),
-}
-
-/// A [`Projection`] that times the one it wraps.
-struct Timed<'a> {
-    inner: &'a mut SkinCollision,
-    spent: Duration,
-}
-
-impl Projection for Timed<'_> {
-    fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool {
-        let t = Instant::now();
-        let moved = self.inner.project(x, order);
-        self.spent += t.elapsed();
-        moved
-    }
-
-    fn active_contacts(&self) -> &[ActiveContact] {
-        self.inner.active_contacts()
-    }
-
-    fn hold(&mut self, held: &[bool]) {
-        self.inner.hold(held);
-    }
 }
 
 /// Moves each anchored vertex by its anchor target's motion since the last frame
@@ -153,12 +128,9 @@ pub fn relax_frame(
                 max_iterations,
                 ..*config
             };
-            let mut timed = Timed {
-                inner: collision,
-                spent: Duration::ZERO,
-            };
+            let mut timed = Timed::new(collision);
             let report = system.relax_projected(x, loads, &sub_config, Some(&mut timed))?;
-            contact_time += timed.spent;
+            contact_time += Duration::from_secs_f64(timed.seconds);
             iterations += report.iterations;
             last_report = Some(report);
         }

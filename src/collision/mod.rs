@@ -927,21 +927,19 @@ impl SkinCollision {
         let travel: Vec<f64> = self.colliders.iter().map(ColliderMesh::travel_m).collect();
         // A collider's travel only grows, unless the collider was replaced in place (through
         // `collider_mut`): then no cached bound measured against the old one holds.
-        let seen: Vec<(u64, f64)> = self
-            .colliders
-            .iter()
-            .map(|c| (c.uid(), c.travel_m()))
-            .collect();
-        if seen.len() == self.travel_seen.len()
-            && seen
+        let replaced = self.travel_seen.len() == nc
+            && self
+                .colliders
                 .iter()
                 .zip(&self.travel_seen)
-                .any(|(now, before)| now.0 != before.0 || now.1 < before.1)
-        {
+                .any(|(c, &(uid, t))| c.uid() != uid || c.travel_m() < t);
+        if replaced {
             self.reach.fill(Reach::NEW);
             self.slots.fill(Slot::NEW);
         }
-        self.travel_seen = seen;
+        self.travel_seen.clear();
+        self.travel_seen
+            .extend(self.colliders.iter().map(|c| (c.uid(), c.travel_m())));
         let ctx = Ctx {
             colliders: &self.colliders,
             travel: &travel,

@@ -76,17 +76,18 @@ fn budget(iterations: u32) -> RelaxConfig {
     }
 }
 
-/// Deterministic pseudo-random numbers in [0, 1).
-struct Lcg(u64);
+/// Deterministic pseudo-random numbers in [0, 1) (also used by the cache's tests).
+pub(super) struct Lcg(pub(super) u64);
 impl Lcg {
-    fn next(&mut self) -> f32 {
+    pub(super) fn next(&mut self) -> f32 {
         self.0 = self
             .0
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
         (self.0 >> 40) as f32 / (1u64 << 24) as f32
     }
-    fn point(&mut self, half: f32) -> Vec3 {
+    /// A point of the cube `[-half, half]³`.
+    pub(super) fn point(&mut self, half: f32) -> Vec3 {
         Vec3::new(self.next(), self.next(), self.next()) * (2.0 * half) - Vec3::splat(half)
     }
 }

@@ -4,22 +4,8 @@ use parry3d::query::PointQuery;
 
 use super::*;
 use crate::collision::shapes::ellipsoid;
+use crate::collision::tests::Lcg;
 use crate::collision::{ColliderId, ContactConfig, SkinCollision};
-
-/// Deterministic pseudo-random numbers in [0, 1).
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f32 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn unit(&mut self) -> Vec3 {
-        (Vec3::new(self.next(), self.next(), self.next()) - 0.5) * 2.0
-    }
-}
 
 /// A lumpy closed surface: an ellipsoid with a crease-like dent (non-convex, so nearest
 /// triangles jump between distant parts of the mesh for some points).
@@ -39,7 +25,7 @@ fn near_surface(v: &[Vec3], rng: &mut Lcg, count: usize, spread: f32) -> Vec<Vec
         .map(|k| {
             let p = v[(k * 7919) % v.len()];
             p + p.normalize_or_zero() * spread * (rng.next() * 2.0 - 0.6)
-                + rng.unit() * 0.3 * spread
+                + rng.point(1.0) * 0.3 * spread
         })
         .collect()
 }
@@ -94,7 +80,7 @@ fn certified_answers_equal_parry_over_deforming_frames_and_passes() {
             // A converging relaxation: steps shrink pass after pass.
             let step = 0.004 * 0.8f32.powi(pass);
             for (i, (p, slot)) in points.iter_mut().zip(&mut slots).enumerate() {
-                *p += rng.unit() * step;
+                *p += rng.point(1.0) * step;
                 let (got, answer) = slot.project(&col, *p, travel, 0.02);
                 match answer {
                     Answer::Certified => certified += 1,
@@ -123,7 +109,7 @@ fn certificates_expire_under_sweeping_motion_and_pose_changes() {
     let mut col = ColliderMesh::from_mesh(lumpy(0.4, &v), t).unwrap();
     let mut rng = Lcg(9);
     let starts = near_surface(&v, &mut rng, 400, 0.05);
-    let dirs: Vec<Vec3> = starts.iter().map(|_| rng.unit() * 0.01).collect();
+    let dirs: Vec<Vec3> = starts.iter().map(|_| rng.point(1.0) * 0.01).collect();
     let mut slots = vec![Slot::NEW; starts.len()];
     let mut searched_later = 0;
     for step in 0..60 {
