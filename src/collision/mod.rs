@@ -5,6 +5,7 @@ pub mod bench_support;
 mod cache;
 mod collider;
 mod frame;
+mod project;
 pub mod shapes;
 
 pub use collider::{ColliderMesh, SurfaceProjection};
@@ -294,8 +295,10 @@ impl Touch {
 const TOUCHES: usize = 2;
 
 /// How far a vertex may go before it can come near a collider: the hot part of the per-vertex
-/// state, read by every pass for every vertex (32 bytes, two per cache line), so a vertex far
-/// from every collider costs one distance, one compare and the store of its position.
+/// state, read by every caller-order pass for every vertex (32 bytes, two per cache line), so a
+/// vertex far from every collider costs one distance, one compare and the store of its
+/// position. Projections read a conservative copy of the test in the solver's order instead
+/// (`project::View`).
 #[derive(Debug, Clone, Copy)]
 #[repr(C, align(32))]
 struct Reach {
@@ -433,7 +436,8 @@ pub struct SkinCollision {
     states: Vec<VertexState>,
     /// `vertex_count × colliders` slots, vertex-major.
     slots: Vec<Slot>,
-    scratch: Vec<Vec3>,
+    /// The skip tests and last positions in the solver's order, for projections.
+    view: project::View,
     diagnostics: ContactDiagnostics,
     plan: Option<Plan>,
     /// Contacts after the last projection, internal order ([`Projection::active_contacts`]).
@@ -485,7 +489,7 @@ impl SkinCollision {
             travel_seen: Vec::new(),
             states: vec![VertexState::NEW; vertex_count],
             slots: Vec::new(),
-            scratch: Vec::new(),
+            view: project::View::default(),
             diagnostics: ContactDiagnostics::default(),
             plan: None,
             active: Vec::new(),
@@ -513,6 +517,7 @@ impl SkinCollision {
             });
         }
         self.thickness.copy_from_slice(thickness_m);
+        self.leave_view();
         // The contact bands changed: no vertex may skip a pass on its old reserve.
         for r in &mut self.reach {
             r.reserve = f32::NEG_INFINITY;
@@ -570,6 +575,7 @@ impl SkinCollision {
     /// Forgets every cached contact, distance bound and friction anchor (the next pass runs
     /// exact queries everywhere; results are the same).
     pub fn clear_cache(&mut self) {
+        self.view.discard();
         let n = self.thickness.len();
         self.states = vec![VertexState::NEW; n];
         self.reach = vec![Reach::NEW; n];
@@ -582,6 +588,7 @@ impl SkinCollision {
     /// must depend only on checkpointed state starts from (see
     /// [`friction_anchors`](Self::friction_anchors)).
     pub fn clear_query_cache(&mut self) {
+        self.view.discard();
         for s in &mut self.states {
             *s = VertexState {
                 contact: s.contact,
@@ -636,6 +643,7 @@ impl SkinCollision {
                 }
             }
         }
+        self.leave_view();
         for ((s, r), a) in self.states.iter_mut().zip(&mut self.reach).zip(anchors) {
             s.contact = a.map_or(Contact::NONE, |a| Contact {
                 collider: a.collider,
@@ -673,6 +681,7 @@ impl SkinCollision {
                 index: i,
             });
         }
+        self.leave_view();
         self.diagnostics = ContactDiagnostics::default();
         for s in &mut self.states {
             s.anchor = s.contact;
@@ -841,7 +850,7 @@ impl SkinCollision {
                 *p += *d;
             }
         }
-        let done = self.pass(x, false);
+        let done = self.pass(x);
         self.record(done.counters, done.unresolved);
         let remaining = plan.substeps - plan.next;
         if remaining == 0 {
@@ -875,7 +884,7 @@ impl SkinCollision {
                 expected: self.vertex_count(),
             });
         }
-        let done = self.pass(x, false);
+        let done = self.pass(x);
         let moved = done.counters.moved > 0;
         self.record(done.counters, done.unresolved);
         Ok(moved)
@@ -914,19 +923,11 @@ impl SkinCollision {
         self.held_vertices.clear();
     }
 
-    /// One contact pass over `x` (caller's order), parallel over fixed chunks of vertices.
-    /// Passes other than projections (`swept == false`) first release the held contacts.
-    fn pass(&mut self, x: &mut [Vec3], swept: bool) -> ChunkPass {
-        if !swept {
-            self.release_held();
-        }
+    /// The colliders' travel ([`ColliderMesh::travel_m`]) now. A collider's travel only grows,
+    /// unless the collider was replaced in place (through `collider_mut`): then no cached bound
+    /// measured against the old one holds, and every one is dropped.
+    fn collider_travel(&mut self) -> Vec<f64> {
         let nc = self.colliders.len();
-        if nc == 0 || x.is_empty() {
-            return ChunkPass::default();
-        }
-        let travel: Vec<f64> = self.colliders.iter().map(ColliderMesh::travel_m).collect();
-        // A collider's travel only grows, unless the collider was replaced in place (through
-        // `collider_mut`): then no cached bound measured against the old one holds.
         let replaced = self.travel_seen.len() == nc
             && self
                 .colliders
@@ -934,18 +935,32 @@ impl SkinCollision {
                 .zip(&self.travel_seen)
                 .any(|(c, &(uid, t))| c.uid() != uid || c.travel_m() < t);
         if replaced {
+            self.leave_view();
             self.reach.fill(Reach::NEW);
             self.slots.fill(Slot::NEW);
         }
         self.travel_seen.clear();
         self.travel_seen
             .extend(self.colliders.iter().map(|c| (c.uid(), c.travel_m())));
+        self.colliders.iter().map(ColliderMesh::travel_m).collect()
+    }
+
+    /// One contact pass over `x` (caller's order), parallel over fixed chunks of vertices,
+    /// without the swept test; the held contacts are released first.
+    fn pass(&mut self, x: &mut [Vec3]) -> ChunkPass {
+        self.leave_view();
+        self.release_held();
+        let nc = self.colliders.len();
+        if nc == 0 || x.is_empty() {
+            return ChunkPass::default();
+        }
+        let travel = self.collider_travel();
         let ctx = Ctx {
             colliders: &self.colliders,
             travel: &travel,
             travel_sum: travel.iter().sum(),
             config: &self.config,
-            swept,
+            swept: false,
         };
         let per_chunk: Vec<ChunkPass> = x
             .par_chunks_mut(CHUNK)
@@ -1031,34 +1046,21 @@ impl Projection for SkinCollision {
             self.diagnostics.length_mismatch = true;
             return false;
         }
+        if self.rank_of != order {
+            // The last positions held in the old order go back to the caller's order first.
+            self.leave_view();
+        }
         if !self.rank_for(order) {
             self.diagnostics.length_mismatch = true;
             return false;
         }
-        // The positions in the caller's order, gathered in parallel.
-        let mut xc = std::mem::take(&mut self.scratch);
-        xc.resize(n, Vec3::ZERO);
-        let rank = &self.rank;
-        xc.par_chunks_mut(CHUNK)
-            .zip(rank.par_chunks(CHUNK))
-            .for_each(|(xs, rs)| {
-                for (p, &r) in xs.iter_mut().zip(rs) {
-                    *p = x[r as usize];
-                }
-            });
-        let done = self.pass(&mut xc, true);
-        for &o in &done.moved {
-            x[self.rank[o as usize] as usize] = xc[o as usize];
-        }
-        self.scratch = xc;
+        let Some(done) = self.project_pass(x) else {
+            return false;
+        };
         let moved = done.counters.moved > 0;
         // The touching vertices in the solver's order, each with its contacts in resolution
         // order.
-        let mut touching: Vec<(u32, u32)> = done
-            .touching
-            .iter()
-            .map(|&o| (self.rank[o as usize], o))
-            .collect();
+        let mut touching = done.touching;
         touching.sort_unstable();
         self.record(done.counters, done.unresolved);
         let stick = self.config.friction >= 1.0;

@@ -240,7 +240,14 @@ fn cached_queries_equal_naive_project_point() {
     for s in [&mut cached, &mut naive] {
         s.add_collider(ColliderMesh::from_mesh(v.clone(), t.clone()).unwrap());
     }
-    let order: Vec<u32> = (0..n as u32).collect();
+    // A shuffled solver order: projections run on the solver's order, caller-order passes
+    // (the frames) in between must see the same state.
+    let mut order: Vec<u32> = (0..n as u32).collect();
+    for i in (1..n).rev() {
+        let j = (rng.next() * (i + 1) as f32) as usize;
+        order.swap(i, j.min(i));
+    }
+    let to_solver = |x: &[Vec3]| -> Vec<Vec3> { order.iter().map(|&o| x[o as usize]).collect() };
     let (mut xa, mut xb) = (points.clone(), points.clone());
     for frame in 0..5 {
         let d = deform(&v, 0.05 * frame as f32);
@@ -260,9 +267,13 @@ fn cached_queries_equal_naive_project_point() {
                 *a += Vec3::splat(step);
                 *b += Vec3::splat(step);
             }
-            cached.project(&mut xa, &order);
+            let (mut ia, mut ib) = (to_solver(&xa), to_solver(&xb));
+            cached.project(&mut ia, &order);
             naive.clear_cache();
-            naive.project(&mut xb, &order);
+            naive.project(&mut ib, &order);
+            for (i, &o) in order.iter().enumerate() {
+                (xa[o as usize], xb[o as usize]) = (ia[i], ib[i]);
+            }
             // Vertices skipped whole on their reserve touch exactly what a full query finds.
             let (ca, cb) = (cached.active_contacts(), naive.active_contacts());
             assert_eq!(ca.len(), cb.len(), "frame {frame} pass {k}");
@@ -977,4 +988,51 @@ fn a_collider_replaced_in_place_is_seen_by_the_next_pass() {
     *skin.collider_mut(id).unwrap() = ColliderMesh::ball(1.0).unwrap();
     assert!(skin.project(&mut x, &order));
     assert!((x[0].z - 1.01).abs() < 1e-5, "{}", x[0]);
+}
+
+#[test]
+fn projections_in_a_shuffled_order_keep_the_last_positions_of_every_pass() {
+    // The swept test of a projection needs each vertex's position after the previous pass,
+    // whichever order that pass ran in; so does the next frame's plan.
+    let config = ContactConfig {
+        thickness_m: 0.01,
+        ..ContactConfig::DEFAULT
+    };
+    let mut skin = SkinCollision::new(3, config).unwrap();
+    skin.add_collider(ColliderMesh::ball(0.1).unwrap());
+    let order = [2u32, 0, 1];
+    let caller = [
+        Vec3::new(0.0, 0.0, 0.5),
+        Vec3::new(3.0, 0.0, 0.0),
+        Vec3::new(-3.0, 0.0, 0.0),
+    ];
+    let mut x = caller.to_vec();
+    assert!(!skin.contact_pass(&mut x).unwrap());
+    // Caller's vertex 0 is the solver's vertex 1. It jumps through the ball in one step, on
+    // the first projection after the caller-order pass: caught on the side it came from.
+    let mut xi: Vec<Vec3> = order.iter().map(|&o| caller[o as usize]).collect();
+    xi[1] = Vec3::new(0.0, 0.0, -0.5);
+    assert!(skin.project(&mut xi, &order));
+    assert!((xi[1].z - 0.11).abs() < 1e-4, "{}", xi[1]);
+    // Again after idle projections and a step back up.
+    for _ in 0..3 {
+        assert!(!skin.project(&mut xi, &order));
+    }
+    xi[1] = Vec3::new(0.0, 0.0, 0.4);
+    assert!(!skin.project(&mut xi, &order));
+    xi[1] = Vec3::new(0.0, 0.0, -0.4);
+    assert!(skin.project(&mut xi, &order));
+    assert!((xi[1].z - 0.11).abs() < 1e-4, "{}", xi[1]);
+    // Back in the caller's order: the frame plan starts from the projected positions (no
+    // motion, a still ball: one substep), not from the caller-order pass's (0.39 m away).
+    let mut x: Vec<Vec3> = vec![Vec3::ZERO; 3];
+    for (i, &o) in order.iter().enumerate() {
+        x[o as usize] = xi[i];
+    }
+    assert_eq!(skin.begin_frame(&mut x).unwrap().substeps, 1);
+    // And the projections' positions are where a moving vertex's substeps start from.
+    let mut y = x.clone();
+    y[0] = Vec3::new(0.0, 0.0, 0.3);
+    assert!(skin.begin_frame(&mut y).unwrap().substeps > 1);
+    assert_eq!(y[0], x[0], "substeps restart from the last pass's position");
 }
