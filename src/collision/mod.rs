@@ -783,11 +783,15 @@ impl SkinCollision {
                         m.prev.lerp(&m.pose, t)
                     };
                     let local = pose.inverse_transform_point(p0.lerp(p1, t));
+                    // A distance of at least `margin + speed / 2` proves any piece out of
+                    // reach: a cheaper bound (the box, or a search stopped there) answers the
+                    // same as the exact distance.
+                    let cap = margin + 0.5 * speed;
                     let d = aabb_distance(col.local_aabb(), local);
-                    if d >= margin + 0.5 * speed {
+                    if d >= cap {
                         d
                     } else {
-                        col.project_local(local, NONE).signed_distance
+                        col.distance_local_capped(local, cap)
                     }
                 };
                 if reaches(&distance, speed, margin) {

@@ -26,9 +26,11 @@ pub(super) struct View {
     /// identities and travels in `key`.
     valid: bool,
     key: Vec<(u64, f64)>,
-    /// Per internal vertex: where it was resolved last (x, y, z) and how far, squared, it may
-    /// move from there before a pass must resolve it (negative: every pass resolves it).
-    test: Vec<[f32; 4]>,
+    /// Per internal vertex: where it was resolved last...
+    at: Vec<Vec3>,
+    /// ... and how far, squared, it may move from there before a pass must resolve it
+    /// (negative: every pass resolves it).
+    limit2: Vec<f32>,
     /// Each vertex's position after the last pass, in the solver's order, while `holds_last`.
     prev: Vec<Vec3>,
     /// Whether `prev` holds the last positions (then [`SkinCollision::last`] is stale).
@@ -44,8 +46,8 @@ impl View {
 }
 
 /// The skip test of a vertex whose reach is `r`, the colliders' summed travel `travel`:
-/// `[at, limit²]` such that `|p − at|² ≤ limit²` in f32 implies `r.skips(p, travel)`.
-fn test_of(r: &Reach, travel: f64) -> [f32; 4] {
+/// `(at, limit²)` such that `|p − at|² ≤ limit²` in f32 implies `r.skips(p, travel)`.
+fn test_of(r: &Reach, travel: f64) -> (Vec3, f32) {
     let limit = r.reserve as f64 / (1.0 + 1e-5) - (travel - r.travel_at);
     // The relative margin (4e-6) covers the f32 rounding of the squared distance, of its
     // square root in `skips` and of `limit²` itself (a few 1e-7 together).
@@ -54,7 +56,7 @@ fn test_of(r: &Reach, travel: f64) -> [f32; 4] {
     } else {
         -1.0
     };
-    [r.at.x, r.at.y, r.at.z, limit2]
+    (r.at, limit2)
 }
 
 /// What a projection pass did.
@@ -76,7 +78,7 @@ struct Resolved {
     moved: bool,
     unresolved: bool,
     touching: bool,
-    test: [f32; 4],
+    test: (Vec3, f32),
 }
 
 impl SkinCollision {
@@ -116,32 +118,24 @@ impl SkinCollision {
         let view = &mut self.view;
         let per_chunk: Vec<(Vec<(u32, Vec3)>, u64)> = x
             .par_chunks(CHUNK)
-            .zip(view.test.par_chunks(CHUNK))
+            .zip(view.at.par_chunks(CHUNK))
+            .zip(view.limit2.par_chunks(CHUNK))
             .zip(view.prev.par_chunks_mut(CHUNK))
             .enumerate()
-            .map(|(chunk, ((xs, tests), prevs))| {
+            .map(|(chunk, (((xs, at), limit2), prevs))| {
                 let mut listed = Vec::new();
-                for (block, ((xs, tests), prevs)) in xs
-                    .chunks(64)
-                    .zip(tests.chunks(64))
-                    .zip(prevs.chunks_mut(64))
+                for (block, (((xs, at), limit2), prevs)) in xs
+                    .chunks(BLOCK)
+                    .zip(at.chunks(BLOCK))
+                    .zip(limit2.chunks(BLOCK))
+                    .zip(prevs.chunks_mut(BLOCK))
                     .enumerate()
                 {
-                    // Branch-free over the block; the failures (rare) are visited by their bits.
-                    let mut fail = 0u64;
-                    let tests = &tests[..xs.len()];
-                    for k in 0..xs.len() {
-                        let (p, t) = (xs[k], tests[k]);
-                        let (dx, dy, dz) = (p.x - t[0], p.y - t[1], p.z - t[2]);
-                        // NaN (never resolved) fails.
-                        let near = dx * dx + dy * dy + dz * dz <= t[3];
-                        fail |= u64::from(!near) << k;
-                    }
-                    let mut bits = fail;
+                    let mut bits = failures(xs, at, limit2);
                     while bits != 0 {
                         let k = bits.trailing_zeros() as usize;
                         bits &= bits - 1;
-                        listed.push(((chunk * CHUNK + block * 64 + k) as u32, prevs[k]));
+                        listed.push(((chunk * CHUNK + block * BLOCK + k) as u32, prevs[k]));
                     }
                     prevs.copy_from_slice(xs);
                 }
@@ -224,7 +218,7 @@ impl SkinCollision {
                     pass.counters.moved += 1;
                 }
                 view.prev[i] = r.p;
-                view.test[i] = r.test;
+                (view.at[i], view.limit2[i]) = r.test;
                 if r.unresolved {
                     pass.unresolved.push(r.o);
                 }
@@ -241,14 +235,16 @@ impl SkinCollision {
     fn rebuild_view(&mut self, travel_sum: f64) {
         let n = self.rank_of.len();
         let view = &mut self.view;
-        view.test.resize(n, [0.0; 4]);
+        view.at.resize(n, Vec3::ZERO);
+        view.limit2.resize(n, 0.0);
         let (order, reach) = (&self.rank_of, &self.reach);
-        view.test
+        view.at
             .par_chunks_mut(CHUNK)
+            .zip(view.limit2.par_chunks_mut(CHUNK))
             .zip(order.par_chunks(CHUNK))
-            .for_each(|(tests, order)| {
-                for (t, &o) in tests.iter_mut().zip(order) {
-                    *t = test_of(&reach[o as usize], travel_sum);
+            .for_each(|((at, limit2), order)| {
+                for ((a, l), &o) in at.iter_mut().zip(limit2).zip(order) {
+                    (*a, *l) = test_of(&reach[o as usize], travel_sum);
                 }
             });
         if !view.holds_last {
@@ -266,5 +262,150 @@ impl SkinCollision {
         }
         view.key.clone_from(&self.travel_seen);
         view.valid = true;
+    }
+}
+
+/// Vertices per block of the skip test (one bit each in a `u64`).
+const BLOCK: usize = 64;
+
+/// Bit `k` set for each vertex `k` of a block (at most [`BLOCK`]) at `xs` that fails its skip
+/// test `|x − at|² ≤ limit²` (NaN fails).
+#[cfg_attr(
+    target_arch = "x86_64",
+    expect(unsafe_code, reason = "the AVX2 path, behind its run-time CPU check")
+)]
+fn failures(xs: &[Vec3], at: &[Vec3], limit2: &[f32]) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    if xs.len() == BLOCK && at.len() == BLOCK && limit2.len() == BLOCK && avx2::available() {
+        // SAFETY: AVX2 is available and the three slices hold a whole block.
+        return unsafe { avx2::failures(xs, at, limit2) };
+    }
+    failures_portable(xs, at, limit2)
+}
+
+/// [`failures`] one vertex at a time.
+fn failures_portable(xs: &[Vec3], at: &[Vec3], limit2: &[f32]) -> u64 {
+    let mut fail = 0u64;
+    for (k, ((p, a), l)) in xs.iter().zip(at).zip(limit2).enumerate() {
+        let (dx, dy, dz) = (p.x - a.x, p.y - a.y, p.z - a.z);
+        let near = dx * dx + dy * dy + dz * dz <= *l;
+        fail |= u64::from(!near) << k;
+    }
+    fail
+}
+
+#[cfg(target_arch = "x86_64")]
+#[expect(
+    unsafe_code,
+    reason = "AVX2 loads of whole blocks behind a run-time CPU check"
+)]
+mod avx2 {
+    use std::arch::x86_64::*;
+
+    use glam::Vec3;
+
+    use super::BLOCK;
+
+    /// Whether the CPU has AVX2 (cached by the standard library).
+    pub fn available() -> bool {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+
+    /// [`super::failures`] of a whole block, eight vertices per step, with the same f32
+    /// operations in the same order (so the same bits).
+    ///
+    /// # Safety
+    /// AVX2 must be available and the slices must hold [`BLOCK`] entries.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn failures(xs: &[Vec3], at: &[Vec3], limit2: &[f32]) -> u64 {
+        // Float 3m + c of eight vertices is component c of vertex m: two blends gather each
+        // component into one register, its lanes in the vertex order below, which one
+        // permutation per component brings back to 0..8.
+        let to_order = |lanes: [i32; 8]| {
+            let mut inv = [0i32; 8];
+            for (l, &m) in lanes.iter().enumerate() {
+                inv[m as usize] = l as i32;
+            }
+            // SAFETY: eight readable i32.
+            unsafe { _mm256_loadu_si256(inv.as_ptr().cast()) }
+        };
+        let (px, py, pz) = (
+            to_order([0, 3, 6, 1, 4, 7, 2, 5]),
+            to_order([5, 0, 3, 6, 1, 4, 7, 2]),
+            to_order([2, 5, 0, 3, 6, 1, 4, 7]),
+        );
+        let (x, a, l) = (
+            xs.as_ptr().cast::<f32>(),
+            at.as_ptr().cast::<f32>(),
+            limit2.as_ptr(),
+        );
+        let mut fail = 0u64;
+        for step in 0..BLOCK / 8 {
+            // SAFETY: 24 floats of `xs` and `at` and 8 of `limit2` from vertex 8 step on are in
+            // the block.
+            unsafe {
+                let o = 24 * step;
+                let sq = |i: usize| {
+                    let d =
+                        _mm256_sub_ps(_mm256_loadu_ps(x.add(o + i)), _mm256_loadu_ps(a.add(o + i)));
+                    _mm256_mul_ps(d, d)
+                };
+                let (s0, s1, s2) = (sq(0), sq(8), sq(16));
+                let cx = _mm256_blend_ps::<0b0010_0100>(_mm256_blend_ps::<0b1001_0010>(s0, s1), s2);
+                let cy = _mm256_blend_ps::<0b0100_1001>(_mm256_blend_ps::<0b0010_0100>(s0, s1), s2);
+                let cz = _mm256_blend_ps::<0b1001_0010>(_mm256_blend_ps::<0b0100_1001>(s0, s1), s2);
+                let sum = _mm256_add_ps(
+                    _mm256_add_ps(
+                        _mm256_permutevar8x32_ps(cx, px),
+                        _mm256_permutevar8x32_ps(cy, py),
+                    ),
+                    _mm256_permutevar8x32_ps(cz, pz),
+                );
+                // Ordered, non-signalling: NaN compares false, so it fails.
+                let near = _mm256_cmp_ps::<_CMP_LE_OQ>(sum, _mm256_loadu_ps(l.add(8 * step)));
+                let bits = !_mm256_movemask_ps(near) as u64 & 0xff;
+                fail |= bits << (8 * step);
+            }
+        }
+        fail
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::collision::tests::Lcg;
+
+    #[test]
+    fn block_skip_tests_match_the_per_vertex_test_bit_for_bit() {
+        let mut rng = Lcg(5);
+        for round in 0..200 {
+            let xs: Vec<Vec3> = (0..BLOCK).map(|_| rng.point(1.0)).collect();
+            let mut at: Vec<Vec3> = (0..BLOCK).map(|_| rng.point(1.0)).collect();
+            let mut limit2: Vec<f32> = (0..BLOCK).map(|_| 4.0 * rng.next() - 1.0).collect();
+            // Never resolved (NaN), and exactly on the limit.
+            at[round % BLOCK] = Vec3::NAN;
+            let k = (round * 7 + 3) % BLOCK;
+            limit2[k] = (xs[k] - at[k]).length_squared();
+            let bits = failures(&xs, &at, &limit2);
+            assert_eq!(bits, failures_portable(&xs, &at, &limit2), "round {round}");
+            for v in 0..BLOCK {
+                let fails = bits >> v & 1 == 1;
+                // An independent answer, in f64, away from the rounding of the boundary.
+                let d2 = xs[v].as_dvec3().distance_squared(at[v].as_dvec3());
+                let l = f64::from(limit2[v]);
+                if v == round % BLOCK {
+                    assert!(fails, "NaN must fail");
+                } else if v == k {
+                    assert!(!fails, "on the limit passes");
+                } else if (d2 - l).abs() > 1e-5 {
+                    assert_eq!(fails, d2 > l, "round {round} vertex {v}");
+                }
+            }
+        }
+        // A short block (the end of the skin) takes the per-vertex path.
+        let xs = vec![Vec3::ZERO; 5];
+        let at = vec![Vec3::X; 5];
+        assert_eq!(failures(&xs, &at, &[2.0, 0.5, 1.0, -1.0, 1.5]), 0b01010);
     }
 }
