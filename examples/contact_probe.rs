@@ -37,7 +37,7 @@ fn main() {
             let c = contact.collider_mut(ids.ulna).expect("ulna");
             c.set_pose(work.forearm_pose(frame)).expect("finite pose");
             let t = Instant::now();
-            contact.clear_query_cache();
+            contact.clear_frame_state();
             contact.advance_frame(&mut x).expect("valid skin");
             spent += t.elapsed().as_secs_f64();
             let mut xi: Vec<_> = order.iter().map(|&o| x[o as usize]).collect();

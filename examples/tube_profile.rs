@@ -23,7 +23,7 @@ fn main() {
             .unwrap()
             .set_pose(work.forearm_pose(f))
             .unwrap();
-        c.clear_query_cache();
+        c.clear_frame_state();
         let tp = Instant::now();
         rayon::scope(|_| c.begin_frame(&mut xp).unwrap());
         print!("plan {:.2} ms | ", tp.elapsed().as_secs_f64() * 1e3);

@@ -347,9 +347,10 @@ impl ArmRun {
     }
 
     /// Runs the next frame of the clip, as the ECS does (`relax_with_contact`): muscle refit
-    /// and forearm pose, contact cache cleared, the frame plan, and per substep a contact pass
-    /// and a relaxation with the contact as the projection (half the iteration budget spread
-    /// over the intermediate substeps, the rest for the last).
+    /// and forearm pose, the last frame's pass state forgotten (the query cache carries over),
+    /// the frame plan, and per substep a contact pass and a relaxation with the contact as the
+    /// projection (half the iteration budget spread over the intermediate substeps, the rest
+    /// for the last).
     pub fn step(&mut self, work: &ArmWorkload) -> Result<FrameTimes, ArmError> {
         let frame = self.frame + 1;
         // The animation (not timed): the muscle's new shape, the skinned anchors.

@@ -81,9 +81,9 @@ pub fn predict_from_anchors(x: &mut [Vec3], prev: &[VertexAnchor], next: &[Verte
     }
 }
 
-/// Relaxes one frame of `system` in contact: `collision`'s query cache cleared (the frame then
-/// depends only on the positions, the friction anchors and the colliders' states), the frame
-/// plan ([`SkinCollision::begin_frame`]), and per substep a contact pass
+/// Relaxes one frame of `system` in contact: `collision`'s last frame's pass state forgotten
+/// ([`SkinCollision::clear_frame_state`]; its query cache carries over), the frame plan
+/// ([`SkinCollision::begin_frame`]), and per substep a contact pass
 /// ([`SkinCollision::substep`]) followed, on the intermediate substeps, by
 /// `schedule.substep_iterations` of relaxation and, on the last, by the rest of the budget
 /// with the contact as the projection. `x` (caller's order) holds the warm start (see
@@ -99,7 +99,7 @@ pub fn relax_frame(
     // One job on the rayon pool for the whole frame (see `SpringSystem::relax_projected`).
     rayon::scope(|_| {
         let t = Instant::now();
-        collision.clear_query_cache();
+        collision.clear_frame_state();
         let plan = collision.begin_frame(x)?;
         let mut contact_time = t.elapsed();
         let substeps = plan.substeps.max(1);

@@ -603,6 +603,26 @@ impl SkinCollision {
         self.active_owner.clear();
     }
 
+    /// Forgets what only the last frame's passes need (each vertex's last position, touches and
+    /// held contacts) but keeps the query cache (closest triangles and distance bounds) and the
+    /// last contacts: a frame starts from this with the same plan and answers as from
+    /// [`clear_query_cache`](Self::clear_query_cache), only its first pass needs far fewer
+    /// exact searches.
+    pub fn clear_frame_state(&mut self) {
+        self.view.discard();
+        for s in &mut self.states {
+            *s = VertexState {
+                contact: s.contact,
+                ..VertexState::NEW
+            };
+        }
+        // A vertex that touched something resolves again on the next pass anyway.
+        self.last.fill(Vec3::NAN);
+        self.held_vertices.clear();
+        self.active.clear();
+        self.active_owner.clear();
+    }
+
     /// Each vertex's last contact (caller's order; `None`: not touching): where friction
     /// anchors it at the start of the next frame. Part of a checkpoint when friction is on.
     pub fn friction_anchors(&self) -> Vec<Option<FrictionAnchor>> {
@@ -741,6 +761,11 @@ impl SkinCollision {
             angle: f32,
             deform: f32,
             global: f32,
+            travel: f64,
+        }
+        let nc = self.colliders.len();
+        if nc == 0 {
+            return 0.0;
         }
         let motions: Vec<Motion> = self
             .colliders
@@ -755,17 +780,18 @@ impl SkinCollision {
                     angle: delta.normalize().to_axis_angle().1.abs(),
                     deform: c.frame_deform_m(),
                     global: c.frame_motion_m(),
+                    travel: c.travel_m(),
                 }
             })
             .collect();
         let cfg = &self.config;
         // The largest motion, above `worst`, of a pair of vertex `i` (now at `p1`) and a
         // collider it can reach; `worst` when there is none.
-        let vertex = |p1: Vec3, last: Vec3, h: f32, mut worst: f32| {
+        let vertex = |p1: Vec3, last: Vec3, h: f32, slots: &[Slot], mut worst: f32| {
             let p0 = if last.is_finite() { last } else { p1 };
             let v = p0.distance(p1);
             let band = h * (1.0 + cfg.contact_band);
-            for (col, m) in self.colliders.iter().zip(&motions) {
+            for ((col, m), slot) in self.colliders.iter().zip(&motions).zip(slots) {
                 if m.global == 0.0 && v == 0.0 {
                     continue;
                 }
@@ -776,6 +802,17 @@ impl SkinCollision {
                 }
                 // Rounding of the transforms and queries.
                 let margin = band + m.deform + 1e-4 * (speed + band) + 1e-6;
+                // The cached distance bound (now, and at the previous pose: at most the
+                // frame's surface motion less) proves what the first test of `reaches` would:
+                // both ends at least `margin + speed / 2` away (with room for the rounding of
+                // the distances it computes).
+                let bound = slot
+                    .lower_bound(p1, m.travel)
+                    .min(slot.lower_bound(p0, m.travel) - m.global as f64);
+                let needed = (margin + 0.5 * speed) as f64;
+                if bound - 1e-4 * (p1.abs().max_element() as f64 + needed) - 1e-6 >= needed {
+                    continue;
+                }
                 let distance = |t: f32| {
                     let pose = if t >= 1.0 {
                         m.pose
@@ -811,16 +848,20 @@ impl SkinCollision {
             .enumerate()
             .filter(|(_, s)| s.contact.collider != NONE)
             .fold(0.0f32, |worst, (i, _)| {
-                vertex(x[i], self.last[i], self.thickness[i], worst)
+                let slots = &self.slots[i * nc..(i + 1) * nc];
+                vertex(x[i], self.last[i], self.thickness[i], slots, worst)
             });
         let per_chunk: Vec<f32> = x
             .par_chunks(CHUNK)
             .zip(self.last.par_chunks(CHUNK))
             .zip(self.thickness.par_chunks(CHUNK))
-            .map(|((xs, lasts), hs)| {
+            .zip(self.slots.par_chunks(CHUNK * nc))
+            .map(|(((xs, lasts), hs), slots)| {
                 let mut worst = touched;
-                for ((&p1, &last), &h) in xs.iter().zip(lasts).zip(hs) {
-                    worst = vertex(p1, last, h, worst);
+                for (((&p1, &last), &h), slots) in
+                    xs.iter().zip(lasts).zip(hs).zip(slots.chunks(nc))
+                {
+                    worst = vertex(p1, last, h, slots, worst);
                 }
                 worst
             })

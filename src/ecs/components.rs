@@ -402,11 +402,15 @@ pub struct RelaxDiagnostics {
 /// substep a contact pass, then a relaxation projected onto the colliders, the frame's
 /// iteration budget shared by the substeps.
 ///
-/// Every frame starts from a cleared query cache ([`SkinCollision::clear_query_cache`]), so a
-/// frame depends only on the skin positions, each vertex's last contact (its friction anchor,
-/// kept across frames so friction carries the skin over many frames) and the colliders'
-/// previous and current states, all part of a checkpoint, which makes checkpoints exact; the
-/// cache still serves the many passes within a frame.
+/// The query cache (each vertex's nearest triangles and distance bounds) carries over from
+/// frame to frame, so most vertices' first pass of a frame needs no search; only each
+/// vertex's last position, touches and held contacts are forgotten
+/// ([`SkinCollision::clear_frame_state`]). Its answers are exact, but on an exact tie between
+/// two surface features a cached and a fresh search may report either, so for checkpoints
+/// [`capture_state`](super::capture_state) clears the cache of the running world, as a restored
+/// world starts without one: the two continue bit for bit. A checkpoint holds the skin
+/// positions, each vertex's last contact (its friction anchor, kept across frames so friction
+/// carries the skin over many frames) and the clock the colliders' states follow from.
 #[derive(Component, Debug, Clone)]
 pub struct SkinContact {
     /// The contact state.

@@ -952,10 +952,19 @@ pub struct SkinState {
 
 /// Captures the state of the scene in `world` at a frame boundary (after a schedule run).
 ///
-/// The contact query cache is not part of it: every frame starts from a cleared cache (see
-/// [`SkinContact`]); the friction anchors are, and the colliders' previous-frame state is
-/// recomputed from the clock.
-pub fn capture_state(world: &World) -> Result<SceneState, SceneError> {
+/// The contact query cache is not part of it: capturing clears it in `world` (see
+/// [`SkinContact`]), as a world restored from the state starts without one, so both continue
+/// bit for bit. The friction anchors are part of it, and the colliders' previous-frame state
+/// is recomputed from the clock.
+pub fn capture_state(world: &mut World) -> Result<SceneState, SceneError> {
+    let state = capture(world)?;
+    for mut contact in world.query::<&mut SkinContact>().iter_mut(world) {
+        contact.collision.clear_query_cache();
+    }
+    Ok(state)
+}
+
+fn capture(world: &World) -> Result<SceneState, SceneError> {
     let animation = world
         .get_resource::<SceneAnimation>()
         .ok_or(SceneError::NotSpawned)?;
@@ -1056,6 +1065,8 @@ pub fn restore_state(world: &mut World, state: &SceneState) -> Result<(), SceneE
     schedule.add_systems((sample_scene, deform_scene, refresh_colliders).chain());
     schedule.run(world);
     for mut contact in world.query::<&mut SkinContact>().iter_mut(world) {
+        // As the captured run cleared its cache at the capture.
+        contact.collision.clear_query_cache();
         for c in 0..contact.colliders.len() {
             let id = contact.colliders[c].1;
             if let Ok(collider) = contact.collision.collider_mut(id) {

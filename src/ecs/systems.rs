@@ -400,11 +400,10 @@ fn relax_one(
 /// last one, whose result is the frame's. The report sums the iterations and keeps the last
 /// substep's residual, energy and stop reason.
 ///
-/// The query cache is cleared first ([`crate::collision::SkinCollision::clear_query_cache`]), so the frame depends
-/// only on the skin positions, the friction anchors (each vertex's last contact, kept across
-/// frames so friction carries the skin along a collider over many frames) and the colliders'
-/// previous and current states, all of which [`crate::ecs::capture_state`] records; the cache
-/// still serves every pass within the frame.
+/// The last frame's pass state is forgotten first
+/// ([`crate::collision::SkinCollision::clear_frame_state`]); the query cache carries over (see
+/// [`SkinContact`] for how checkpoints stay exact), and the friction anchors (each vertex's
+/// last contact) carry friction along a collider over many frames.
 fn relax_with_contact(
     system: &SpringSystem,
     x: &mut [Vec3],

@@ -405,7 +405,7 @@ pub fn run_export(
                     version: 1,
                     fingerprint: fingerprint.clone(),
                     frames_done: written,
-                    state: capture_state(&pipeline.world)?,
+                    state: capture_state(&mut pipeline.world)?,
                     frames: stored.clone(),
                     stats: stats.clone(),
                 };

@@ -14,7 +14,7 @@ fn friction_anchors_make_checkpoints_exact() {
     let (n, m) = (27, 3);
     let (mut direct, mut schedule, spawned) = world_with(&scene, &options);
     run(&mut direct, &mut schedule, n);
-    let state = capture_state(&direct).unwrap();
+    let state = capture_state(&mut direct).unwrap();
     assert!(
         state.skins[0].friction_anchors.iter().any(Option::is_some),
         "no vertex touching at the checkpoint"

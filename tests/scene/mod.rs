@@ -215,7 +215,7 @@ fn capture_restore_continues_bit_for_bit() {
     let (n, m) = (27, 3);
     let (mut direct, mut schedule, spawned) = world_with(&scene, &options);
     run(&mut direct, &mut schedule, n);
-    let state = capture_state(&direct).unwrap();
+    let state = capture_state(&mut direct).unwrap();
     let json = serde_json::to_string(&state).unwrap();
     run(&mut direct, &mut schedule, m);
 
@@ -240,11 +240,45 @@ fn capture_restore_continues_bit_for_bit() {
     assert_ne!(bits(&a), bits(&c));
 }
 
+/// The contact query cache carries over from frame to frame (a frame's passes search less than
+/// from a cleared cache), and a capture clears it in the running world: the captured run's
+/// next frame then does exactly the work of the restored run's, query for query.
+#[test]
+fn the_query_cache_carries_over_frames_and_a_capture_clears_it() {
+    let scene = arm();
+    let options = thick_contact();
+    let n = 27;
+    let contact = |world: &World| {
+        scene_diagnostics(world).unwrap().skins[0]
+            .contact
+            .clone()
+            .unwrap()
+    };
+    let (mut direct, mut schedule, _) = world_with(&scene, &options);
+    run(&mut direct, &mut schedule, n);
+    let (mut uncaptured, mut schedule0, _) = world_with(&scene, &options);
+    run(&mut uncaptured, &mut schedule0, n + 1);
+    let state = capture_state(&mut direct).unwrap();
+    run(&mut direct, &mut schedule, 1);
+    let (mut restored, mut schedule2, _) = world_with(&scene, &options);
+    restore_state(&mut restored, &state).unwrap();
+    run(&mut restored, &mut schedule2, 1);
+    let (warm, captured, fresh) = (contact(&uncaptured), contact(&direct), contact(&restored));
+    assert_eq!(captured, fresh);
+    assert!(fresh.passes > 0 && fresh.exact_queries > 0);
+    assert!(
+        warm.exact_queries < fresh.exact_queries,
+        "warm {} vs cleared {} exact queries",
+        warm.exact_queries,
+        fresh.exact_queries
+    );
+}
+
 #[test]
 fn restore_rejects_a_state_of_another_timestep() {
     let scene = arm();
-    let (direct, _, _) = world_with(&scene, &no_contact());
-    let state = capture_state(&direct).unwrap();
+    let (mut direct, _, _) = world_with(&scene, &no_contact());
+    let state = capture_state(&mut direct).unwrap();
     let other = SceneOptions {
         dt_s: 1.0 / 60.0,
         ..no_contact()
