@@ -338,8 +338,9 @@ impl ColliderMesh {
     }
 
     /// Puts the collider in the state a fraction `s` of the way from the previous frame to the
-    /// current one (`s == 1`: exactly the current state).
-    pub(crate) fn enter_substep(&mut self, s: f32, current_pose: &Pose) {
+    /// current one (`s == 1`: exactly the current state); with `shape == false` a deforming
+    /// mesh keeps its current shape (only the pose is interpolated).
+    pub(crate) fn enter_substep(&mut self, s: f32, current_pose: &Pose, shape: bool) {
         let pose = if s >= 1.0 {
             *current_pose
         } else {
@@ -348,6 +349,7 @@ impl ColliderMesh {
         self.travel_m += pose_motion(&self.local_aabb, &self.pose, &pose) as f64;
         self.pose = pose;
         if let Shape::Mesh(m) = &mut self.shape
+            && shape
             && m.prev != m.current
         {
             let target: Vec<Vec3> = if s >= 1.0 {

@@ -461,6 +461,8 @@ struct Plan {
     substeps: u32,
     next: u32,
     poses: Vec<Pose>,
+    /// Per collider: whether a deforming mesh passes through its interpolated shapes.
+    interpolate: Vec<bool>,
     increments: Vec<Vec3>,
 }
 
@@ -717,7 +719,7 @@ impl SkinCollision {
         let capped = wanted > self.config.max_substeps as f32;
         self.diagnostics.substeps_capped = capped;
         self.diagnostics.substeps = substeps;
-        let mut increments = Vec::new();
+        let mut increments: Vec<Vec3> = Vec::new();
         if substeps > 1 {
             increments = x
                 .iter_mut()
@@ -731,10 +733,20 @@ impl SkinCollision {
                 })
                 .collect();
         }
+        // A deforming mesh whose whole frame motion, plus a substep of the skin's, is within
+        // the half thickness a substep may move needs no substeps of its own: it takes its
+        // current shape at the first substep, which spares a BVH refit per substep.
+        let step = increments.iter().map(|d| d.length()).fold(0.0f32, f32::max);
+        let interpolate = self
+            .colliders
+            .iter()
+            .map(|c| c.frame_motion_m() + step >= 0.5 * h_min)
+            .collect();
         self.plan = Some(Plan {
             substeps,
             next: 1,
             poses: self.colliders.iter().map(ColliderMesh::pose).collect(),
+            interpolate,
             increments,
         });
         Ok(FramePlan { substeps, capped })
@@ -870,8 +882,8 @@ impl SkinCollision {
     }
 
     /// Runs the next substep of the frame begun by [`begin_frame`](Self::begin_frame): colliders
-    /// to their interpolated state (poses slerped, deforming vertices interpolated and the BVH
-    /// refitted), the skin's warm-start motion advanced, one contact pass. Returns how many
+    /// to their interpolated state (poses slerped; a deforming mesh's vertices interpolated and
+    /// its BVH refitted, unless its whole frame motion fits in one substep), the skin's warm-start motion advanced, one contact pass. Returns how many
     /// substeps remain; after the last one the colliders' state becomes their previous-frame
     /// state. Without a frame begun it does nothing and returns 0.
     pub fn substep(&mut self, x: &mut [Vec3]) -> Result<u32, CollisionError> {
@@ -888,8 +900,13 @@ impl SkinCollision {
         };
         if plan.substeps > 1 {
             let s = plan.next as f32 / plan.substeps as f32;
-            for (c, pose) in self.colliders.iter_mut().zip(&plan.poses) {
-                c.enter_substep(s, pose);
+            for ((c, pose), &shape) in self
+                .colliders
+                .iter_mut()
+                .zip(&plan.poses)
+                .zip(&plan.interpolate)
+            {
+                c.enter_substep(s, pose, shape);
             }
             for (p, d) in x.iter_mut().zip(&plan.increments) {
                 *p += *d;
