@@ -35,6 +35,15 @@ pub(crate) trait Lanes: Copy {
     fn load_i(self, p: &[u32]) -> Self::I;
     /// `base + p[l]` per lane (16-bit offsets, sign-extended).
     fn load_near(self, p: &[i16], base: u32) -> Self::I;
+    /// [`load_near`](Self::load_near) with the float offsets `3 p[l]` of the same vertices
+    /// (the rows of [`Rows`]).
+    #[inline(always)]
+    fn load_near_rows(self, p: &[i16], base: u32) -> (Self::I, [isize; 8]) {
+        (
+            self.load_near(p, base),
+            std::array::from_fn(|l| 3 * p[l] as isize),
+        )
+    }
     /// `base[idx[l]]` per lane.
     ///
     /// # Safety
@@ -76,6 +85,22 @@ pub(crate) trait Lanes: Copy {
         let (x, d) = unsafe { (self.vec3s(p, n, rows, j), self.vec3s(dp, n, rows, j)) };
         stepped::<Self, true>(self, x, d, a)
     }
+    /// [`vec3s`](Self::vec3s) of `x` (at `p`) and of `d` (at `dp`) at the same rows.
+    ///
+    /// # Safety
+    /// As [`vec3s`](Self::vec3s), for both `p` and `dp`.
+    #[inline(always)]
+    unsafe fn vec3s_pair(
+        self,
+        p: *const f32,
+        dp: *const f32,
+        n: usize,
+        rows: &Rows,
+        j: Self::I,
+    ) -> ([Self::F; 3], [Self::F; 3]) {
+        // SAFETY: the caller's contract.
+        unsafe { (self.vec3s(p, n, rows, j), self.vec3s(dp, n, rows, j)) }
+    }
     /// Writes eight `Vec3` (24 floats) at `p` from their x, y and z lanes.
     ///
     /// # Safety
@@ -103,6 +128,11 @@ pub(crate) trait Lanes: Copy {
     fn gt_i(self, a: Self::I, b: Self::I) -> Self::M;
     /// `m ? a : b` per lane.
     fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F;
+    /// `m ? a : +0` per lane, for a mask `m` from a comparison ([`gt`](Self::gt),
+    /// [`le`](Self::le), [`gt_i`](Self::gt_i); not [`negative`](Self::negative)).
+    fn keep(self, m: Self::M, a: Self::F) -> Self::F;
+    /// `base + l` in lane `l`.
+    fn iota(self, base: u32) -> Self::I;
     fn store(self, a: Self::F) -> [f32; 8];
     fn widen(self, a: Self::F) -> Self::D;
     fn dsplat(self, v: f64) -> Self::D;
@@ -228,6 +258,14 @@ impl Lanes for Scalar {
         std::array::from_fn(|l| if m[l] { a[l] } else { b[l] })
     }
     #[inline(always)]
+    fn keep(self, m: Self::M, a: Self::F) -> Self::F {
+        std::array::from_fn(|l| if m[l] { a[l] } else { 0.0 })
+    }
+    #[inline(always)]
+    fn iota(self, base: u32) -> Self::I {
+        std::array::from_fn(|l| base.wrapping_add(l as u32))
+    }
+    #[inline(always)]
     fn store(self, a: Self::F) -> [f32; 8] {
         a
     }
@@ -264,6 +302,24 @@ mod avx512;
 mod avx2 {
     use std::arch::x86_64::*;
 
+    /// The x, y and z lanes of eight 16-byte rows, paired by 128-bit halves: `v[l]` holds the
+    /// rows of lanes `l` and `l + 4`.
+    #[inline(always)]
+    fn transpose4(v: [__m256; 4]) -> [__m256; 3] {
+        // SAFETY: AVX is enabled wherever this is inlined (AVX2 lanes only).
+        unsafe {
+            let t0 = _mm256_unpacklo_ps(v[0], v[1]);
+            let t1 = _mm256_unpackhi_ps(v[0], v[1]);
+            let t2 = _mm256_unpacklo_ps(v[2], v[3]);
+            let t3 = _mm256_unpackhi_ps(v[2], v[3]);
+            [
+                _mm256_shuffle_ps::<0x44>(t0, t2),
+                _mm256_shuffle_ps::<0xEE>(t0, t2),
+                _mm256_shuffle_ps::<0x44>(t1, t3),
+            ]
+        }
+    }
+
     /// AVX2 lanes; only constructed after `is_x86_feature_detected!("avx2")`, and only used
     /// inside `#[target_feature(enable = "avx2")]` functions (every method is inlined there).
     #[derive(Clone, Copy)]
@@ -297,6 +353,25 @@ mod avx2 {
             unsafe {
                 let wide = _mm256_cvtepi16_epi32(_mm_loadu_si128(p.as_ptr().cast()));
                 _mm256_add_epi32(wide, _mm256_set1_epi32(base as i32))
+            }
+        }
+        #[inline(always)]
+        fn load_near_rows(self, p: &[i16], base: u32) -> (Self::I, [isize; 8]) {
+            assert!(p.len() >= 8);
+            // SAFETY: eight values in bounds (asserted). The rows are decoded eight at a time
+            // and go through memory (read back one by one as addresses): cheaper than a
+            // sign-extending load and a multiply-by-12 per lane.
+            unsafe {
+                let wide = _mm256_cvtepi16_epi32(_mm_loadu_si128(p.as_ptr().cast()));
+                let three = _mm256_add_epi32(wide, _mm256_add_epi32(wide, wide));
+                let mut rows = [0isize; 8];
+                let out = rows.as_mut_ptr().cast::<__m256i>();
+                _mm256_storeu_si256(out, _mm256_cvtepi32_epi64(_mm256_castsi256_si128(three)));
+                _mm256_storeu_si256(
+                    out.add(1),
+                    _mm256_cvtepi32_epi64(_mm256_extracti128_si256::<1>(three)),
+                );
+                (_mm256_add_epi32(wide, _mm256_set1_epi32(base as i32)), rows)
             }
         }
         #[inline(always)]
@@ -380,7 +455,7 @@ mod avx2 {
                 let p = p.add(3 * rows.shift);
                 macro_rules! row {
                     ($l:literal) => {
-                        _mm_loadu_ps(p.offset(*rows.o.get_unchecked($l)))
+                        _mm_loadu_ps(p.offset(rows.row($l)))
                     };
                 }
                 let v0 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(0)), row!(4));
@@ -422,16 +497,16 @@ mod avx2 {
                     );
                     return super::stepped::<Self, true>(self, x, d, a);
                 }
-                let o = &rows.o;
                 let (p, dp) = (p.add(3 * rows.shift), dp.add(3 * rows.shift));
                 let pair = |lo: usize, hi: usize| {
+                    let (lo, hi) = (rows.row(lo), rows.row(hi));
                     let x = _mm256_insertf128_ps::<1>(
-                        _mm256_castps128_ps256(_mm_loadu_ps(p.offset(o[lo]))),
-                        _mm_loadu_ps(p.offset(o[hi])),
+                        _mm256_castps128_ps256(_mm_loadu_ps(p.offset(lo))),
+                        _mm_loadu_ps(p.offset(hi)),
                     );
                     let d = _mm256_insertf128_ps::<1>(
-                        _mm256_castps128_ps256(_mm_loadu_ps(dp.offset(o[lo]))),
-                        _mm_loadu_ps(dp.offset(o[hi])),
+                        _mm256_castps128_ps256(_mm_loadu_ps(dp.offset(lo))),
+                        _mm_loadu_ps(dp.offset(hi)),
                     );
                     _mm256_add_ps(x, _mm256_mul_ps(d, a))
                 };
@@ -445,6 +520,41 @@ mod avx2 {
                     _mm256_shuffle_ps::<0xEE>(t0, t2),
                     _mm256_shuffle_ps::<0x44>(t1, t3),
                 ]
+            }
+        }
+        #[inline(always)]
+        unsafe fn vec3s_pair(
+            self,
+            p: *const f32,
+            dp: *const f32,
+            n: usize,
+            rows: &super::Rows,
+            j: Self::I,
+        ) -> ([Self::F; 3], [Self::F; 3]) {
+            // SAFETY: as in `vec3s`, each lane's row read once for both vectors.
+            unsafe {
+                let last = _mm256_set1_epi32(n as i32 - 1);
+                if rows.may_name_last
+                    && _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0
+                {
+                    let j3 = self.times3(j);
+                    return (super::gather3(self, p, j3), super::gather3(self, dp, j3));
+                }
+                let (p, dp) = (p.add(3 * rows.shift), dp.add(3 * rows.shift));
+                let mut v = [_mm256_setzero_ps(); 4];
+                let mut u = [_mm256_setzero_ps(); 4];
+                for lane in 0..4 {
+                    let (lo, hi) = (rows.row(lane), rows.row(lane + 4));
+                    v[lane] = _mm256_insertf128_ps::<1>(
+                        _mm256_castps128_ps256(_mm_loadu_ps(p.offset(lo))),
+                        _mm_loadu_ps(p.offset(hi)),
+                    );
+                    u[lane] = _mm256_insertf128_ps::<1>(
+                        _mm256_castps128_ps256(_mm_loadu_ps(dp.offset(lo))),
+                        _mm_loadu_ps(dp.offset(hi)),
+                    );
+                }
+                (transpose4(v), transpose4(u))
             }
         }
         #[inline(always)]
@@ -529,6 +639,20 @@ mod avx2 {
         #[inline(always)]
         fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
             unsafe { _mm256_blendv_ps(b, a, m) }
+        }
+        #[inline(always)]
+        fn keep(self, m: Self::M, a: Self::F) -> Self::F {
+            // Comparison masks are all ones or all zeros per lane.
+            unsafe { _mm256_and_ps(m, a) }
+        }
+        #[inline(always)]
+        fn iota(self, base: u32) -> Self::I {
+            unsafe {
+                _mm256_add_epi32(
+                    _mm256_set1_epi32(base as i32),
+                    _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+                )
+            }
         }
         #[inline(always)]
         fn store(self, a: Self::F) -> [f32; 8] {
@@ -653,6 +777,17 @@ pub(crate) struct Rows {
     may_name_last: bool,
 }
 
+impl Rows {
+    /// The row of lane `l`, read from memory (volatile: kept a plain load per lane, not turned
+    /// into vector extractions when the rows were decoded as vectors).
+    #[inline(always)]
+    fn row(&self, l: usize) -> isize {
+        assert!(l < LANES);
+        // SAFETY: `l` is in bounds (asserted; the check folds away for constant lanes).
+        unsafe { self.o.as_ptr().add(l).read_volatile() }
+    }
+}
+
 /// `v[e..e + 8]` without a bounds check.
 ///
 /// # Safety
@@ -690,19 +825,13 @@ impl Ends for Near<'_> {
     fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows) {
         // SAFETY: `e` is an entry of this slice (the caller's arrays checked).
         let p = unsafe { eight(self.near, e) };
-        // Volatile reads keep the decode scalar (a sign-extending load and a multiply-by-3
-        // address per lane): vectorised, the compiler turns it into 64-bit vector arithmetic
-        // and extractions, which cost more.
-        let o = std::array::from_fn(|k| {
-            // SAFETY: eight offsets in bounds (sliced above).
-            3 * unsafe { p.as_ptr().add(k).read_volatile() } as isize
-        });
+        let (j, o) = l.load_near_rows(p, self.base);
         let rows = Rows {
             o,
             shift: self.base as usize,
             may_name_last: false,
         };
-        (l.load_near(p, self.base), rows)
+        (j, rows)
     }
 }
 
@@ -761,6 +890,9 @@ fn stepped<S: Lanes, const STEP: bool>(l: S, x: [S::F; 3], d: [S::F; 3], a: S::F
 /// The vertices of slice `s` (clamped to the last vertex past the end).
 #[inline(always)]
 fn own_lanes<S: Lanes>(l: S, sell: &Sell, s: usize) -> S::I {
+    if (s + 1) * LANES <= sell.n {
+        return l.iota((s * LANES) as u32);
+    }
     let last = sell.n - 1;
     let own: [u32; 8] = std::array::from_fn(|lane| (s * LANES + lane).min(last) as u32);
     l.load_i(&own)
@@ -850,7 +982,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         // A degenerate spring (no direction) adds nothing: its coefficient is zeroed, and
         // `f + e·0` is `f` bit for bit (`e` is finite there, and a sum that starts at +0 is
         // never −0), as if the spring were skipped.
-        let c = l.select(ok, l.mul(l.mul(k, l.sub(len, rest)), inv), zero);
+        let c = l.keep(ok, l.mul(l.mul(k, l.sub(len, rest)), inv));
         fx = l.add(fx, l.mul(ex, c));
         fy = l.add(fy, l.mul(ey, c));
         fz = l.add(fz, l.mul(ez, c));
@@ -873,10 +1005,10 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         // or padding adds `½·0·st² = +0` to an energy that starts at +0.
         let len64 = l.widen(len);
         let linear = l.dsub(len64, l.widen(rest));
-        let half_inv = l.select(ok, l.mul(half, inv), zero);
+        let half_inv = l.keep(ok, l.mul(half, inv));
         let newton = l.dmul(l.dsub(l2_64, l.dmul(len64, len64)), l.widen(half_inv));
         let stretch = l.dadd(linear, newton);
-        let k_upper = l.select(l.gt_i(j, own), k, zero);
+        let k_upper = l.keep(l.gt_i(j, own), k);
         let term = l.dmul(l.dmul(l.dmul(half64, l.widen(k_upper)), stretch), stretch);
         energy = l.dadd(energy, term);
     }
@@ -1228,8 +1360,7 @@ fn curvature_chunk<S: Lanes>(
             // SAFETY: `e` is an entry of slice `s` (its arrays checked above).
             let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
             // SAFETY: spring indices are below n, x and d have n entries.
-            let [zx, zy, zz] = unsafe { l.vec3s(xp, n, &rows, j) };
-            let [vx, vy, vz] = unsafe { l.vec3s(dp, n, &rows, j) };
+            let ([zx, zy, zz], [vx, vy, vz]) = unsafe { l.vec3s_pair(xp, dp, n, &rows, j) };
             let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));
             let (ux, uy, uz) = (l.sub(vx, dx), l.sub(vy, dy), l.sub(vz, dz));
             let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));

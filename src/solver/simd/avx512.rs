@@ -39,6 +39,10 @@ impl Lanes for Avx512 {
         A.load_near(p, base)
     }
     #[inline(always)]
+    fn load_near_rows(self, p: &[i16], base: u32) -> (Self::I, [isize; 8]) {
+        A.load_near_rows(p, base)
+    }
+    #[inline(always)]
     unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
         // SAFETY: the caller's contract.
         unsafe { A.gather(base, idx) }
@@ -70,6 +74,18 @@ impl Lanes for Avx512 {
     ) -> [Self::F; 3] {
         // SAFETY: the caller's contract.
         unsafe { A.vec3s_step(p, dp, a, n, rows, j) }
+    }
+    #[inline(always)]
+    unsafe fn vec3s_pair(
+        self,
+        p: *const f32,
+        dp: *const f32,
+        n: usize,
+        rows: &super::Rows,
+        j: Self::I,
+    ) -> ([Self::F; 3], [Self::F; 3]) {
+        // SAFETY: the caller's contract.
+        unsafe { A.vec3s_pair(p, dp, n, rows, j) }
     }
     #[inline(always)]
     unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
@@ -136,6 +152,14 @@ impl Lanes for Avx512 {
     #[inline(always)]
     fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
         A.select(m, a, b)
+    }
+    #[inline(always)]
+    fn keep(self, m: Self::M, a: Self::F) -> Self::F {
+        A.keep(m, a)
+    }
+    #[inline(always)]
+    fn iota(self, base: u32) -> Self::I {
+        A.iota(base)
     }
     #[inline(always)]
     fn store(self, a: Self::F) -> [f32; 8] {
