@@ -35,15 +35,6 @@ pub(crate) trait Lanes: Copy {
     fn load_i(self, p: &[u32]) -> Self::I;
     /// `base + p[l]` per lane (16-bit offsets, sign-extended).
     fn load_near(self, p: &[i16], base: u32) -> Self::I;
-    /// [`load_near`](Self::load_near) with the float offsets `3 p[l]` of the same vertices
-    /// (the rows of [`Rows`]).
-    #[inline(always)]
-    fn load_near_rows(self, p: &[i16], base: u32) -> (Self::I, [isize; 8]) {
-        (
-            self.load_near(p, base),
-            std::array::from_fn(|l| 3 * p[l] as isize),
-        )
-    }
     /// `base[idx[l]]` per lane.
     ///
     /// # Safety
@@ -353,25 +344,6 @@ mod avx2 {
             unsafe {
                 let wide = _mm256_cvtepi16_epi32(_mm_loadu_si128(p.as_ptr().cast()));
                 _mm256_add_epi32(wide, _mm256_set1_epi32(base as i32))
-            }
-        }
-        #[inline(always)]
-        fn load_near_rows(self, p: &[i16], base: u32) -> (Self::I, [isize; 8]) {
-            assert!(p.len() >= 8);
-            // SAFETY: eight values in bounds (asserted). The rows are decoded eight at a time
-            // and go through memory (read back one by one as addresses): cheaper than a
-            // sign-extending load and a multiply-by-12 per lane.
-            unsafe {
-                let wide = _mm256_cvtepi16_epi32(_mm_loadu_si128(p.as_ptr().cast()));
-                let three = _mm256_add_epi32(wide, _mm256_add_epi32(wide, wide));
-                let mut rows = [0isize; 8];
-                let out = rows.as_mut_ptr().cast::<__m256i>();
-                _mm256_storeu_si256(out, _mm256_cvtepi32_epi64(_mm256_castsi256_si128(three)));
-                _mm256_storeu_si256(
-                    out.add(1),
-                    _mm256_cvtepi32_epi64(_mm256_extracti128_si256::<1>(three)),
-                );
-                (_mm256_add_epi32(wide, _mm256_set1_epi32(base as i32)), rows)
             }
         }
         #[inline(always)]
@@ -706,7 +678,8 @@ pub(crate) enum Isa {
     Scalar,
     /// AVX2 (x86-64 only, detected at run time).
     Avx2,
-    /// AVX2 for the f32 half, AVX-512F for the f64 half (x86-64 only, detected at run time).
+    /// AVX2 for the f32 half (with the 32 registers of AVX-512VL), AVX-512F for the f64 half
+    /// (x86-64 only, detected at run time).
     Avx512,
 }
 
@@ -736,7 +709,9 @@ impl Isa {
         #[cfg(target_arch = "x86_64")]
         if n < (1 << 27) && std::arch::is_x86_feature_detected!("avx2") {
             all.push(Self::Avx2);
-            if std::arch::is_x86_feature_detected!("avx512f") {
+            if std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512vl")
+            {
                 all.push(Self::Avx512);
             }
         }
@@ -778,13 +753,10 @@ pub(crate) struct Rows {
 }
 
 impl Rows {
-    /// The row of lane `l`, read from memory (volatile: kept a plain load per lane, not turned
-    /// into vector extractions when the rows were decoded as vectors).
+    /// The row of lane `l`.
     #[inline(always)]
     fn row(&self, l: usize) -> isize {
-        assert!(l < LANES);
-        // SAFETY: `l` is in bounds (asserted; the check folds away for constant lanes).
-        unsafe { self.o.as_ptr().add(l).read_volatile() }
+        self.o[l]
     }
 }
 
@@ -825,14 +797,40 @@ impl Ends for Near<'_> {
     fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows) {
         // SAFETY: `e` is an entry of this slice (the caller's arrays checked).
         let p = unsafe { eight(self.near, e) };
-        let (j, o) = l.load_near_rows(p, self.base);
+        // Volatile reads keep the decode scalar (a sign-extending load and a multiply-by-3
+        // address per lane): vectorised, the compiler turns it into 64-bit vector arithmetic
+        // and extractions, which cost more (and a vector decode stored and read back as
+        // addresses is fewer instructions but slower). `opaque` keeps the row `3 j` in a
+        // register, so each read of x or d at it scales it by 4 in the address instead of the
+        // decode computing the byte offset `12 j` (one instruction fewer per lane).
+        let o = std::array::from_fn(|k| {
+            // SAFETY: eight offsets in bounds (sliced above).
+            opaque(3 * unsafe { p.as_ptr().add(k).read_volatile() } as isize)
+        });
         let rows = Rows {
             o,
             shift: self.base as usize,
             may_name_last: false,
         };
-        (j, rows)
+        (l.load_near(p, self.base), rows)
     }
+}
+
+/// `v`, unknown to the optimiser (no instruction: the value stays where it is).
+#[inline(always)]
+fn opaque(v: isize) -> isize {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let mut v = v;
+        // SAFETY: an empty assembly block that claims to change a register; it reads and
+        // writes nothing else.
+        unsafe {
+            std::arch::asm!("/* {0} */", inout(reg) v, options(pure, nomem, nostack, preserves_flags))
+        };
+        v
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    v
 }
 
 /// A wide slice: full indices, `far[e - begin]` for entry `e`.
@@ -1182,7 +1180,7 @@ fn force_chunk_avx2(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f")]
+#[target_feature(enable = "avx2,avx512f,avx512vl")]
 fn force_chunk_avx512(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
     force_chunk_any(avx512::Avx512, f, first, r)
 }
@@ -1195,7 +1193,7 @@ impl ForceInputs<'_> {
             // SAFETY: `Isa::Avx2` is only returned after the CPU check.
             Isa::Avx2 => unsafe { force_chunk_avx2(self, first, r) },
             #[cfg(target_arch = "x86_64")]
-            // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2 and AVX-512F).
+            // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2, AVX-512F and VL).
             Isa::Avx512 => unsafe { force_chunk_avx512(self, first, r) },
             _ => force_chunk_any(Scalar, self, first, r),
         }
@@ -1437,7 +1435,7 @@ fn curvature_chunk_avx2(
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f")]
+#[target_feature(enable = "avx2,avx512f,avx512vl")]
 fn curvature_chunk_avx512(
     sell: &Sell,
     x: &[Vec3],
@@ -1464,7 +1462,7 @@ pub(crate) fn curvature(
         // SAFETY: `Isa::Avx2` is only returned after the CPU check.
         Isa::Avx2 => unsafe { curvature_chunk_avx2(sell, x, d, anchors, slices) },
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2 and AVX-512F).
+        // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2, AVX-512F and VL).
         Isa::Avx512 => unsafe { curvature_chunk_avx512(sell, x, d, anchors, slices) },
         _ => curvature_chunk(Scalar, sell, x, d, anchors, slices),
     }

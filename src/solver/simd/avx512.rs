@@ -9,8 +9,9 @@ use std::arch::x86_64::*;
 use super::Lanes;
 use super::avx2::Avx2;
 
-/// AVX-512 lanes; only constructed after `is_x86_feature_detected!("avx512f")` (and AVX2), and
-/// only used inside `#[target_feature(enable = "avx2,avx512f")]` functions (every method is
+/// AVX-512 lanes; only constructed after `is_x86_feature_detected!` for AVX-512F, AVX-512VL and
+/// AVX2, and
+/// only used inside `#[target_feature(enable = "avx2,avx512f,avx512vl")]` functions (every method is
 /// inlined there).
 #[derive(Clone, Copy)]
 pub(crate) struct Avx512;
@@ -37,10 +38,6 @@ impl Lanes for Avx512 {
     #[inline(always)]
     fn load_near(self, p: &[i16], base: u32) -> Self::I {
         A.load_near(p, base)
-    }
-    #[inline(always)]
-    fn load_near_rows(self, p: &[i16], base: u32) -> (Self::I, [isize; 8]) {
-        A.load_near_rows(p, base)
     }
     #[inline(always)]
     unsafe fn gather(self, base: *const f32, idx: Self::I) -> Self::F {
