@@ -45,6 +45,22 @@ pub(crate) trait Lanes: Copy {
     /// # Safety
     /// 24 floats from `p` must be readable.
     unsafe fn load3(self, p: *const f32) -> [Self::F; 3];
+    /// Eight consecutive floats at `p`.
+    ///
+    /// # Safety
+    /// 8 floats from `p` must be readable.
+    unsafe fn load_at(self, p: *const f32) -> Self::F;
+    /// Writes eight floats at `p`.
+    ///
+    /// # Safety
+    /// 8 floats from `p` must be writable.
+    unsafe fn store_at(self, p: *mut f32, a: Self::F);
+    /// The x, y and z lanes of eight `Vec3` held as their 24 floats in order (as
+    /// [`load3`](Self::load3) from registers).
+    fn deinterleave(self, v: [Self::F; 3]) -> [Self::F; 3];
+    /// Eight per-vertex values spread over the 24 floats of eight `Vec3` (each value three
+    /// times in a row, in the layout [`load_at`](Self::load_at) reads them).
+    fn spread3(self, w: Self::F) -> [Self::F; 3];
     /// Eight consecutive rows of eight floats at `p`, transposed: lane `l` of entry `c` is
     /// `p[8 l + c]`.
     ///
@@ -172,6 +188,26 @@ impl Lanes for Scalar {
     unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
         // SAFETY: the caller guarantees 64 readable floats.
         std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(8 * l + c) }))
+    }
+    #[inline(always)]
+    unsafe fn load_at(self, p: *const f32) -> Self::F {
+        // SAFETY: the caller guarantees 8 readable floats.
+        std::array::from_fn(|l| unsafe { *p.add(l) })
+    }
+    #[inline(always)]
+    unsafe fn store_at(self, p: *mut f32, a: Self::F) {
+        for (l, a) in a.iter().enumerate() {
+            // SAFETY: the caller guarantees 8 writable floats.
+            unsafe { *p.add(l) = *a };
+        }
+    }
+    #[inline(always)]
+    fn deinterleave(self, v: [Self::F; 3]) -> [Self::F; 3] {
+        std::array::from_fn(|c| std::array::from_fn(|l| v[(3 * l + c) / 8][(3 * l + c) % 8]))
+    }
+    #[inline(always)]
+    fn spread3(self, w: Self::F) -> [Self::F; 3] {
+        std::array::from_fn(|k| std::array::from_fn(|l| w[(8 * k + l) / 3]))
     }
     #[inline(always)]
     unsafe fn vec3s(self, p: *const f32, _n: usize, rows: &Rows, _j: Self::I) -> [Self::F; 3] {
@@ -353,15 +389,42 @@ mod avx2 {
         }
         #[inline(always)]
         unsafe fn load3(self, p: *const f32) -> [Self::F; 3] {
-            // SAFETY: the caller guarantees 24 readable floats. Float 3m + c is component c of
-            // vertex m; two blends gather each component's eight values into one register (out
-            // of order), one permutation puts them in vertex order.
+            // SAFETY: the caller guarantees 24 readable floats.
             unsafe {
-                let (a, b, c) = (
+                self.deinterleave([
                     _mm256_loadu_ps(p),
                     _mm256_loadu_ps(p.add(8)),
                     _mm256_loadu_ps(p.add(16)),
-                );
+                ])
+            }
+        }
+        #[inline(always)]
+        unsafe fn load_at(self, p: *const f32) -> Self::F {
+            // SAFETY: the caller guarantees 8 readable floats.
+            unsafe { _mm256_loadu_ps(p) }
+        }
+        #[inline(always)]
+        unsafe fn store_at(self, p: *mut f32, a: Self::F) {
+            // SAFETY: the caller guarantees 8 writable floats.
+            unsafe { _mm256_storeu_ps(p, a) }
+        }
+        #[inline(always)]
+        fn spread3(self, w: Self::F) -> [Self::F; 3] {
+            unsafe {
+                [
+                    _mm256_permutevar8x32_ps(w, _mm256_setr_epi32(0, 0, 0, 1, 1, 1, 2, 2)),
+                    _mm256_permutevar8x32_ps(w, _mm256_setr_epi32(2, 3, 3, 3, 4, 4, 4, 5)),
+                    _mm256_permutevar8x32_ps(w, _mm256_setr_epi32(5, 5, 6, 6, 6, 7, 7, 7)),
+                ]
+            }
+        }
+        #[inline(always)]
+        fn deinterleave(self, v: [Self::F; 3]) -> [Self::F; 3] {
+            // Float 3m + c is component c of vertex m; two blends gather each component's
+            // eight values into one register (out of order), one permutation puts them in
+            // vertex order.
+            unsafe {
+                let [a, b, c] = v;
                 let x = _mm256_blend_ps::<0b0010_0100>(_mm256_blend_ps::<0b1001_0010>(a, b), c);
                 let y = _mm256_blend_ps::<0b0100_1001>(_mm256_blend_ps::<0b0010_0100>(a, b), c);
                 let z = _mm256_blend_ps::<0b1001_0010>(_mm256_blend_ps::<0b0100_1001>(a, b), c);
@@ -1216,29 +1279,40 @@ fn direction_chunk<S: Lanes>(
     assert!(step.as_ref().is_none_or(|(x, _)| x.len() == d.len()));
     let full = d.len() / LANES * LANES;
     let b = l.splat(beta);
+    let a = l.splat(step.as_ref().map_or(0.0, |s| s.1));
     let mut slope = 0.0f64;
+    // Elementwise on the floats as stored (no transposes): eight vertices are three registers
+    // of eight floats; only the products `r·d` are regrouped per component for the dot.
     for o in (0..full).step_by(LANES) {
         let (rp, dp) = (
             r[o..].as_ptr().cast::<f32>(),
             d[o..].as_mut_ptr().cast::<f32>(),
         );
-        // SAFETY: eight vectors from `o < full` are in bounds of `r` and `d`.
-        let ([rx, ry, rz], [dx, dy, dz]) = unsafe { (l.load3(rp), l.load3(dp)) };
-        if let Some((x, a)) = step.as_mut() {
+        // SAFETY: eight vectors (24 floats) from `o < full` are in bounds of `r` and `d`.
+        let (rv, dv) = unsafe {
+            (
+                [0, 8, 16].map(|f| l.load_at(rp.add(f))),
+                [0, 8, 16].map(|f| l.load_at(dp.add(f))),
+            )
+        };
+        if let Some((x, _)) = step.as_mut() {
             let xp = x[o..].as_mut_ptr().cast::<f32>();
-            // SAFETY: eight vectors from `o` are in bounds of `x` (same length as `d`).
-            unsafe {
-                let moved = stepped::<S, true>(l, l.load3(xp), [dx, dy, dz], l.splat(*a));
-                l.store3(xp, moved);
+            for (k, dv) in dv.iter().enumerate() {
+                // SAFETY: eight vectors from `o` are in bounds of `x` (same length as `d`).
+                unsafe {
+                    let moved = l.add(l.load_at(xp.add(8 * k)), l.mul(*dv, a));
+                    l.store_at(xp.add(8 * k), moved);
+                }
             }
         }
-        let wv = l.load(&w[o..o + LANES]);
-        let nx = l.add(l.mul(rx, wv), l.mul(dx, b));
-        let ny = l.add(l.mul(ry, wv), l.mul(dy, b));
-        let nz = l.add(l.mul(rz, wv), l.mul(dz, b));
-        // SAFETY: as above.
-        unsafe { l.store3(dp, [nx, ny, nz]) };
-        let rd = l.add(l.add(l.mul(rx, nx), l.mul(ry, ny)), l.mul(rz, nz));
+        let wv = l.spread3(l.load(&w[o..o + LANES]));
+        let nv: [S::F; 3] = std::array::from_fn(|k| l.add(l.mul(rv[k], wv[k]), l.mul(dv[k], b)));
+        for (k, nv) in nv.iter().enumerate() {
+            // SAFETY: as above.
+            unsafe { l.store_at(dp.add(8 * k), *nv) };
+        }
+        let [px, py, pz] = l.deinterleave(std::array::from_fn(|k| l.mul(rv[k], nv[k])));
+        let rd = l.add(l.add(px, py), pz);
         for v in l.store(rd) {
             slope += v as f64;
         }
@@ -1287,21 +1361,21 @@ pub(crate) fn direction(
 #[inline(always)]
 fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32) {
     assert!(x.len() == d.len());
-    let full = x.len() / LANES * LANES;
+    // Elementwise on the floats as stored.
+    let floats = 3 * x.len();
+    let full = floats / LANES * LANES;
+    let (xp, dp) = (x.as_mut_ptr().cast::<f32>(), d.as_ptr().cast::<f32>());
     let av = l.splat(a);
-    for o in (0..full).step_by(LANES) {
-        let (xp, dp) = (
-            x[o..].as_mut_ptr().cast::<f32>(),
-            d[o..].as_ptr().cast::<f32>(),
-        );
-        // SAFETY: eight vectors from `o < full` are in bounds of `x` and `d`.
+    for f in (0..full).step_by(LANES) {
+        // SAFETY: eight floats from `f < full <= floats` are in bounds of `x` and `d`.
         unsafe {
-            let moved = stepped::<S, true>(l, l.load3(xp), l.load3(dp), av);
-            l.store3(xp, moved);
+            let moved = l.add(l.load_at(xp.add(f)), l.mul(l.load_at(dp.add(f)), av));
+            l.store_at(xp.add(f), moved);
         }
     }
-    for i in full..x.len() {
-        x[i] += d[i] * a;
+    for f in full..floats {
+        // SAFETY: `f < floats`, in bounds of both.
+        unsafe { *xp.add(f) += *dp.add(f) * a };
     }
 }
 

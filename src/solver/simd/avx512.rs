@@ -50,6 +50,24 @@ impl Lanes for Avx512 {
         unsafe { A.load3(p) }
     }
     #[inline(always)]
+    unsafe fn load_at(self, p: *const f32) -> Self::F {
+        // SAFETY: the caller's contract.
+        unsafe { A.load_at(p) }
+    }
+    #[inline(always)]
+    unsafe fn store_at(self, p: *mut f32, a: Self::F) {
+        // SAFETY: the caller's contract.
+        unsafe { A.store_at(p, a) }
+    }
+    #[inline(always)]
+    fn deinterleave(self, v: [Self::F; 3]) -> [Self::F; 3] {
+        A.deinterleave(v)
+    }
+    #[inline(always)]
+    fn spread3(self, w: Self::F) -> [Self::F; 3] {
+        A.spread3(w)
+    }
+    #[inline(always)]
     unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
         // SAFETY: the caller's contract.
         unsafe { A.load8x8(p) }
