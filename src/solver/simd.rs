@@ -1006,13 +1006,20 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     let (dp, a) = (d.as_ptr().cast::<f32>(), l.splat(a));
     // SAFETY (all gathers): indices below n, arrays of n entries (the caller's contract).
     let [yx, yy, yz] = unsafe {
-        let x = own_vec3(l, sell, s, own, f.x);
-        let d = if STEP {
-            own_vec3(l, sell, s, own, d)
+        if STEP && (s + 1) * LANES <= sell.n {
+            // A full slice: the step on the 24 floats as stored, then one transpose.
+            let (xs, ds) = (xp.add(3 * LANES * s), dp.add(3 * LANES * s));
+            let y = [0, 8, 16].map(|f| l.add(l.load_at(xs.add(f)), l.mul(l.load_at(ds.add(f)), a)));
+            l.deinterleave(y)
         } else {
-            x
-        };
-        stepped::<S, STEP>(l, x, d, a)
+            let x = own_vec3(l, sell, s, own, f.x);
+            let d = if STEP {
+                own_vec3(l, sell, s, own, d)
+            } else {
+                x
+            };
+            stepped::<S, STEP>(l, x, d, a)
+        }
     };
     let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
     let zero = l.splat(0.0);
