@@ -846,16 +846,27 @@ fn assert_entries(sell: &Sell) {
 trait Ends: Copy {
     /// The other ends of entry `e` (of this slice) as lanes and as rows.
     fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows);
+    /// The lanes whose other end (`j` from [`at`](Self::at)) is above their own vertex `own`.
+    #[inline(always)]
+    fn upper<S: Lanes>(self, l: S, j: S::I, own: S::I) -> S::M {
+        l.gt_i(j, own)
+    }
 }
 
-/// A slice whose other ends are 16-bit offsets from its first vertex `base`.
+/// A slice whose other ends are 16-bit offsets from its first vertex `base` (times three with
+/// `TRIPLE`).
 #[derive(Clone, Copy)]
-struct Near<'a> {
+struct Near<'a, const TRIPLE: bool> {
     near: &'a [i16],
     base: u32,
 }
 
-impl Ends for Near<'_> {
+impl<const TRIPLE: bool> Ends for Near<'_, TRIPLE> {
+    #[inline(always)]
+    fn upper<S: Lanes>(self, l: S, j: S::I, own: S::I) -> S::M {
+        // Tripled: `j` is `3 j` (below 2^29: vertex counts below 2^27 take these lanes).
+        l.gt_i(j, if TRIPLE { l.times3(own) } else { own })
+    }
     #[inline(always)]
     fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows) {
         // SAFETY: `e` is an entry of this slice (the caller's arrays checked).
@@ -866,16 +877,19 @@ impl Ends for Near<'_> {
         // addresses is fewer instructions but slower). `opaque` keeps the row `3 j` in a
         // register, so each read of x or d at it scales it by 4 in the address instead of the
         // decode computing the byte offset `12 j` (one instruction fewer per lane).
+        // A tripled slice stores the rows themselves.
         let o = std::array::from_fn(|k| {
             // SAFETY: eight offsets in bounds (sliced above).
-            opaque(3 * unsafe { p.as_ptr().add(k).read_volatile() } as isize)
+            let v = unsafe { p.as_ptr().add(k).read_volatile() } as isize;
+            opaque(if TRIPLE { v } else { 3 * v })
         });
         let rows = Rows {
             o,
             shift: self.base as usize,
             may_name_last: false,
         };
-        (l.load_near(p, self.base), rows)
+        let base = if TRIPLE { 3 * self.base } else { self.base };
+        (l.load_near(p, base), rows)
     }
 }
 
@@ -920,8 +934,15 @@ impl Ends for Far<'_> {
 macro_rules! with_ends {
     ($sell:expr, $s:expr, $ends:ident => $body:expr) => {
         match $sell.far_of($s) {
+            None if $sell.tripled($s) => {
+                let $ends = Near::<true> {
+                    near: &$sell.near,
+                    base: ($s * LANES) as u32,
+                };
+                $body
+            }
             None => {
-                let $ends = Near {
+                let $ends = Near::<false> {
                     near: &$sell.near,
                     base: ($s * LANES) as u32,
                 };
@@ -1076,7 +1097,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         let half_inv = l.keep(ok, l.mul(half, inv));
         let newton = l.dmul(l.dsub(l2_64, l.dmul(len64, len64)), l.widen(half_inv));
         let stretch = l.dadd(linear, newton);
-        let k_upper = l.keep(l.gt_i(j, own), k);
+        let k_upper = l.keep(ends.upper(l, j, own), k);
         let term = l.dmul(l.dmul(l.dmul(half64, l.widen(k_upper)), stretch), stretch);
         energy = l.dadd(energy, term);
     }
@@ -1452,7 +1473,7 @@ fn curvature_chunk<S: Lanes>(
             let taut = l.max(l.sub(one, l.mul(rest, inv)), zero);
             let term = l.mul(k, l.add(along2, l.mul(taut, transverse)));
             let term = l.select(l.le(l2, tiny2), l.mul(k, uu), term);
-            vertex = l.select(l.gt_i(j, own), l.add(vertex, term), vertex);
+            vertex = l.select(ends.upper(l, j, own), l.add(vertex, term), vertex);
         }
             vertex
         });
@@ -1739,6 +1760,8 @@ mod tests {
         let mut edges: Vec<[u32; 2]> = (0..n - 1).map(|i| [i, i + 1]).collect();
         edges.extend((0..n - 2).step_by(2).map(|i| [i, i + 2]));
         edges.extend((0..40).map(|i| [i * 7, n - 1 - i * 997]));
+        // Springs 20 000 vertices long: 16-bit offsets, but too long to store times three.
+        edges.extend((0..30).map(|i| [1000 + i * 13, 21_000 + i * 13]));
         let k: Vec<f32> = (0..edges.len()).map(|e| 10.0 + (e % 7) as f32).collect();
         let rest: Vec<f32> = edges
             .iter()
@@ -1747,6 +1770,10 @@ mod tests {
         let system = SpringSystem::new(&pos, &edges, &k, &rest).unwrap();
         let sell = &system.sell;
         assert!(!sell.wide.is_empty() && sell.wide.len() < sell.slices() / 10);
+        // All three storages of the other ends occur.
+        let near = |s: &usize| sell.far_of(*s).is_none();
+        assert!((0..sell.slices()).any(|s| near(&s) && !sell.tripled(s)));
+        assert!((0..sell.slices()).any(|s| near(&s) && sell.tripled(s)));
         let x: Vec<Vec3> = (0..n as usize)
             .map(|i| system.to_internal(&pos)[i] + Vec3::splat((i as f32).sin() * 1e-4))
             .collect();
