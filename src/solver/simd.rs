@@ -902,7 +902,11 @@ fn opaque(v: isize) -> isize {
         // SAFETY: an empty assembly block that claims to change a register; it reads and
         // writes nothing else.
         unsafe {
-            std::arch::asm!("/* {0} */", inout(reg) v, options(pure, nomem, nostack, preserves_flags))
+            std::arch::asm!(
+                "/* {0} */",
+                inout(reg) v,
+                options(pure, nomem, nostack, preserves_flags)
+            )
         };
         v
     }
@@ -1048,36 +1052,46 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     let half64 = l.dsplat(0.5);
     let (mut fx, mut fy, mut fz) = (zero, zero, zero);
     let mut energy = l.dsplat(0.0);
-    // One spring of every lane per step: force always, energy from the upper entries on
-    // (springs to higher vertices only).
-    let upper = sell.upper_entries(s).start;
-    for e in sell.entries(s).step_by(LANES) {
-        let (j, rows) = ends.at(l, e);
-        // SAFETY: `e` is an entry of slice `s` (asserted in bounds by the caller).
-        let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
-        // SAFETY: spring indices are below n, x and d have n entries.
-        let [zx, zy, zz] = unsafe {
-            if STEP {
-                l.vec3s_step(xp, dp, a, sell.n, &rows, j)
-            } else {
-                l.vec3s(xp, sell.n, &rows, j)
-            }
-        };
-        let (ex, ey, ez) = (l.sub(zx, yx), l.sub(zy, yy), l.sub(zz, yz));
-        let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
-        let len = l.sqrt(l2);
-        let inv = l.div(one, len);
-        let ok = l.gt(len, tiny);
-        // A degenerate spring (no direction) adds nothing: its coefficient is zeroed, and
-        // `f + e·0` is `f` bit for bit (`e` is finite there, and a sum that starts at +0 is
-        // never −0), as if the spring were skipped.
-        let c = l.keep(ok, l.mul(l.mul(k, l.sub(len, rest)), inv));
-        fx = l.add(fx, l.mul(ex, c));
-        fy = l.add(fy, l.mul(ey, c));
-        fz = l.add(fz, l.mul(ez, c));
-        if e < upper {
-            continue;
-        }
+    // The force of one spring of every lane (entry `e`), with what the energy needs (a macro:
+    // a closure would not inherit the target features, and its lane operations would not
+    // inline).
+    macro_rules! spring {
+        ($e:expr) => {{
+            let e = $e;
+            let (j, rows) = ends.at(l, e);
+            // SAFETY: `e` is an entry of slice `s` (asserted in bounds by the caller).
+            let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
+            // SAFETY: spring indices are below n, x and d have n entries.
+            let z = unsafe {
+                if STEP {
+                    l.vec3s_step(xp, dp, a, sell.n, &rows, j)
+                } else {
+                    l.vec3s(xp, sell.n, &rows, j)
+                }
+            };
+            let (ex, ey, ez) = (l.sub(z[0], yx), l.sub(z[1], yy), l.sub(z[2], yz));
+            let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
+            let len = l.sqrt(l2);
+            let inv = l.div(one, len);
+            let ok = l.gt(len, tiny);
+            // A degenerate spring (no direction) adds nothing: its coefficient is zeroed, and
+            // `f + e·0` is `f` bit for bit (`e` is finite there, and a sum that starts at +0 is
+            // never −0), as if the spring were skipped.
+            let c = l.keep(ok, l.mul(l.mul(k, l.sub(len, rest)), inv));
+            fx = l.add(fx, l.mul(ex, c));
+            fy = l.add(fy, l.mul(ey, c));
+            fz = l.add(fz, l.mul(ez, c));
+            (j, z, len, inv, ok, k, rest)
+        }};
+    }
+    // Force always, energy from the upper entries on (springs to higher vertices only): two
+    // loops, no test per entry.
+    let (entries, upper) = (sell.entries(s), sell.upper_entries(s).start);
+    for e in (entries.start..upper).step_by(LANES) {
+        spring!(e);
+    }
+    for e in (upper..entries.end).step_by(LANES) {
+        let (j, [zx, zy, zz], len, inv, ok, k, rest) = spring!(e);
         // Energy in f64 from exact differences, each spring once (from its lower end): the
         // stretch `|e| − rest` with one Newton step on the f32 length.
         let (ex64, ey64, ez64) = (
