@@ -10,7 +10,9 @@
 //! never joins a vertex to itself), and contribute nothing.
 //!
 //! The other end of a spring is stored as a 16-bit offset from the slice's first vertex
-//! (vertices are in Morton order, so almost every neighbour is near); a slice with a neighbour
+//! (vertices are in Morton order, so almost every neighbour is near), times three when all of
+//! the slice's offsets allow it ("tripled": the float offset of the neighbour's position, which
+//! the kernels use as an address without a multiplication); a slice with a neighbour
 //! farther than that ("wide", flagged in [`Sell::upper`]) keeps full 32-bit indices in
 //! [`Sell::far`] instead. So does every slice that names the last vertex (the last slice and
 //! its neighbours): the kernels read a vertex as 16 bytes, one float past its own, which they
@@ -24,6 +26,10 @@ pub(crate) const LANES: usize = 8;
 /// Flag bit of [`Sell::upper`]: the slice's other ends are in [`Sell::far`].
 const WIDE: u32 = 1 << 31;
 
+/// Flag bit of [`Sell::upper`]: the slice's offsets in [`Sell::near`] are stored times three
+/// (the float offset of the other end's row, which the kernels use as an address directly).
+const TRIPLE: u32 = 1 << 30;
+
 /// The half-springs of every vertex, in slices of [`LANES`] vertices.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Sell {
@@ -32,10 +38,10 @@ pub(crate) struct Sell {
     /// Start of each slice's entries (`slices + 1` values, multiples of [`LANES`]).
     pub start: Vec<u32>,
     /// Per slice, the first entry from which some lane has a spring to a higher vertex, with
-    /// the top bit set for a wide slice.
+    /// the top bit set for a wide slice and the next one for a tripled slice.
     pub upper: Vec<u32>,
     /// The vertex at the other end (the vertex itself for padding), minus the slice's first
-    /// vertex (0 in wide slices).
+    /// vertex (0 in wide slices; times three in tripled slices).
     pub near: Vec<i16>,
     /// Stiffness, N/m (0 for padding).
     pub k: Vec<f32>,
@@ -101,8 +107,17 @@ impl Sell {
             };
             let mut flag = 0;
             if other.iter().all(|o| offset(o).is_some()) {
+                // Times three when every offset allows it (and the flag bit is free).
+                let triple = end < TRIPLE as usize
+                    && other
+                        .iter()
+                        .all(|o| offset(o).and_then(|o| o.checked_mul(3)).is_some());
+                let scale = if triple { 3 } else { 1 };
                 for (slot, o) in near[begin..end].iter_mut().zip(&other) {
-                    *slot = offset(o).unwrap_or_default();
+                    *slot = offset(o).unwrap_or_default() * scale;
+                }
+                if triple {
+                    flag = TRIPLE;
                 }
             } else {
                 flag = WIDE;
@@ -132,7 +147,7 @@ impl Sell {
     /// The entries of slice `s` from which some lane has a spring to a higher vertex.
     #[inline(always)]
     pub fn upper_entries(&self, s: usize) -> std::ops::Range<usize> {
-        (self.upper[s] & !WIDE) as usize..self.start[s + 1] as usize
+        (self.upper[s] & !(WIDE | TRIPLE)) as usize..self.start[s + 1] as usize
     }
 
     /// The other ends of slice `s`'s entries: `None` when they are in [`near`](Self::near),
@@ -147,6 +162,12 @@ impl Sell {
         Some(&self.far[offset..offset + self.entries(s).len()])
     }
 
+    /// Whether slice `s` (a near one) stores its offsets times three.
+    #[inline(always)]
+    pub fn tripled(&self, s: usize) -> bool {
+        self.upper[s] & TRIPLE != 0
+    }
+
     /// Number of slices.
     pub fn slices(&self) -> usize {
         self.start.len() - 1
@@ -156,7 +177,10 @@ impl Sell {
     pub fn other(&self, s: usize, e: usize) -> u32 {
         match self.far_of(s) {
             Some(far) => far[e - self.start[s] as usize],
-            None => ((s * LANES) as u32).wrapping_add_signed(self.near[e].into()),
+            None => {
+                let offset = i32::from(self.near[e]) / if self.tripled(s) { 3 } else { 1 };
+                ((s * LANES) as u32).wrapping_add_signed(offset)
+            }
         }
     }
 
@@ -273,6 +297,18 @@ mod tests {
         let last = (n as usize).div_ceil(LANES) as u32 - 1;
         assert_eq!(wide, vec![0, (n - 20) / 8, last]);
         assert!(sell.far_of(32_000 / 8).is_none());
+        // Its offset (-31 993) is too far to store times three; the chain's slices, whose
+        // neighbours are within a few vertices, store theirs tripled.
+        assert!(!sell.tripled(32_000 / 8));
+        assert!(sell.tripled(10) && sell.tripled(32_000 / 8 + 1));
+        let s = 10;
+        for e in sell.entries(s) {
+            let lane = (e - sell.start[s] as usize) % LANES;
+            let i = (s * LANES + lane) as i32;
+            let o = sell.other(s, e) as i32;
+            assert_eq!(i32::from(sell.near[e]), 3 * (o - s as i32 * LANES as i32));
+            assert!((o - i).abs() <= 1, "entry {e}");
+        }
         let (o2, s2) = sell.to_csr();
         assert_eq!(o2, offsets);
         assert_eq!(s2, springs);

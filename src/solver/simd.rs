@@ -45,6 +45,22 @@ pub(crate) trait Lanes: Copy {
     /// # Safety
     /// 24 floats from `p` must be readable.
     unsafe fn load3(self, p: *const f32) -> [Self::F; 3];
+    /// Eight consecutive floats at `p`.
+    ///
+    /// # Safety
+    /// 8 floats from `p` must be readable.
+    unsafe fn load_at(self, p: *const f32) -> Self::F;
+    /// Writes eight floats at `p`.
+    ///
+    /// # Safety
+    /// 8 floats from `p` must be writable.
+    unsafe fn store_at(self, p: *mut f32, a: Self::F);
+    /// The x, y and z lanes of eight `Vec3` held as their 24 floats in order (as
+    /// [`load3`](Self::load3) from registers).
+    fn deinterleave(self, v: [Self::F; 3]) -> [Self::F; 3];
+    /// Eight per-vertex values spread over the 24 floats of eight `Vec3` (each value three
+    /// times in a row, in the layout [`load_at`](Self::load_at) reads them).
+    fn spread3(self, w: Self::F) -> [Self::F; 3];
     /// Eight consecutive rows of eight floats at `p`, transposed: lane `l` of entry `c` is
     /// `p[8 l + c]`.
     ///
@@ -76,6 +92,22 @@ pub(crate) trait Lanes: Copy {
         let (x, d) = unsafe { (self.vec3s(p, n, rows, j), self.vec3s(dp, n, rows, j)) };
         stepped::<Self, true>(self, x, d, a)
     }
+    /// [`vec3s`](Self::vec3s) of `x` (at `p`) and of `d` (at `dp`) at the same rows.
+    ///
+    /// # Safety
+    /// As [`vec3s`](Self::vec3s), for both `p` and `dp`.
+    #[inline(always)]
+    unsafe fn vec3s_pair(
+        self,
+        p: *const f32,
+        dp: *const f32,
+        n: usize,
+        rows: &Rows,
+        j: Self::I,
+    ) -> ([Self::F; 3], [Self::F; 3]) {
+        // SAFETY: the caller's contract.
+        unsafe { (self.vec3s(p, n, rows, j), self.vec3s(dp, n, rows, j)) }
+    }
     /// Writes eight `Vec3` (24 floats) at `p` from their x, y and z lanes.
     ///
     /// # Safety
@@ -103,6 +135,11 @@ pub(crate) trait Lanes: Copy {
     fn gt_i(self, a: Self::I, b: Self::I) -> Self::M;
     /// `m ? a : b` per lane.
     fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F;
+    /// `m ? a : +0` per lane, for a mask `m` from a comparison ([`gt`](Self::gt),
+    /// [`le`](Self::le), [`gt_i`](Self::gt_i); not [`negative`](Self::negative)).
+    fn keep(self, m: Self::M, a: Self::F) -> Self::F;
+    /// `base + l` in lane `l`.
+    fn iota(self, base: u32) -> Self::I;
     fn store(self, a: Self::F) -> [f32; 8];
     fn widen(self, a: Self::F) -> Self::D;
     fn dsplat(self, v: f64) -> Self::D;
@@ -151,6 +188,26 @@ impl Lanes for Scalar {
     unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
         // SAFETY: the caller guarantees 64 readable floats.
         std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(8 * l + c) }))
+    }
+    #[inline(always)]
+    unsafe fn load_at(self, p: *const f32) -> Self::F {
+        // SAFETY: the caller guarantees 8 readable floats.
+        std::array::from_fn(|l| unsafe { *p.add(l) })
+    }
+    #[inline(always)]
+    unsafe fn store_at(self, p: *mut f32, a: Self::F) {
+        for (l, a) in a.iter().enumerate() {
+            // SAFETY: the caller guarantees 8 writable floats.
+            unsafe { *p.add(l) = *a };
+        }
+    }
+    #[inline(always)]
+    fn deinterleave(self, v: [Self::F; 3]) -> [Self::F; 3] {
+        std::array::from_fn(|c| std::array::from_fn(|l| v[(3 * l + c) / 8][(3 * l + c) % 8]))
+    }
+    #[inline(always)]
+    fn spread3(self, w: Self::F) -> [Self::F; 3] {
+        std::array::from_fn(|k| std::array::from_fn(|l| w[(8 * k + l) / 3]))
     }
     #[inline(always)]
     unsafe fn vec3s(self, p: *const f32, _n: usize, rows: &Rows, _j: Self::I) -> [Self::F; 3] {
@@ -228,6 +285,14 @@ impl Lanes for Scalar {
         std::array::from_fn(|l| if m[l] { a[l] } else { b[l] })
     }
     #[inline(always)]
+    fn keep(self, m: Self::M, a: Self::F) -> Self::F {
+        std::array::from_fn(|l| if m[l] { a[l] } else { 0.0 })
+    }
+    #[inline(always)]
+    fn iota(self, base: u32) -> Self::I {
+        std::array::from_fn(|l| base.wrapping_add(l as u32))
+    }
+    #[inline(always)]
     fn store(self, a: Self::F) -> [f32; 8] {
         a
     }
@@ -263,6 +328,24 @@ mod avx512;
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use std::arch::x86_64::*;
+
+    /// The x, y and z lanes of eight 16-byte rows, paired by 128-bit halves: `v[l]` holds the
+    /// rows of lanes `l` and `l + 4`.
+    #[inline(always)]
+    fn transpose4(v: [__m256; 4]) -> [__m256; 3] {
+        // SAFETY: AVX is enabled wherever this is inlined (AVX2 lanes only).
+        unsafe {
+            let t0 = _mm256_unpacklo_ps(v[0], v[1]);
+            let t1 = _mm256_unpackhi_ps(v[0], v[1]);
+            let t2 = _mm256_unpacklo_ps(v[2], v[3]);
+            let t3 = _mm256_unpackhi_ps(v[2], v[3]);
+            [
+                _mm256_shuffle_ps::<0x44>(t0, t2),
+                _mm256_shuffle_ps::<0xEE>(t0, t2),
+                _mm256_shuffle_ps::<0x44>(t1, t3),
+            ]
+        }
+    }
 
     /// AVX2 lanes; only constructed after `is_x86_feature_detected!("avx2")`, and only used
     /// inside `#[target_feature(enable = "avx2")]` functions (every method is inlined there).
@@ -306,15 +389,42 @@ mod avx2 {
         }
         #[inline(always)]
         unsafe fn load3(self, p: *const f32) -> [Self::F; 3] {
-            // SAFETY: the caller guarantees 24 readable floats. Float 3m + c is component c of
-            // vertex m; two blends gather each component's eight values into one register (out
-            // of order), one permutation puts them in vertex order.
+            // SAFETY: the caller guarantees 24 readable floats.
             unsafe {
-                let (a, b, c) = (
+                self.deinterleave([
                     _mm256_loadu_ps(p),
                     _mm256_loadu_ps(p.add(8)),
                     _mm256_loadu_ps(p.add(16)),
-                );
+                ])
+            }
+        }
+        #[inline(always)]
+        unsafe fn load_at(self, p: *const f32) -> Self::F {
+            // SAFETY: the caller guarantees 8 readable floats.
+            unsafe { _mm256_loadu_ps(p) }
+        }
+        #[inline(always)]
+        unsafe fn store_at(self, p: *mut f32, a: Self::F) {
+            // SAFETY: the caller guarantees 8 writable floats.
+            unsafe { _mm256_storeu_ps(p, a) }
+        }
+        #[inline(always)]
+        fn spread3(self, w: Self::F) -> [Self::F; 3] {
+            unsafe {
+                [
+                    _mm256_permutevar8x32_ps(w, _mm256_setr_epi32(0, 0, 0, 1, 1, 1, 2, 2)),
+                    _mm256_permutevar8x32_ps(w, _mm256_setr_epi32(2, 3, 3, 3, 4, 4, 4, 5)),
+                    _mm256_permutevar8x32_ps(w, _mm256_setr_epi32(5, 5, 6, 6, 6, 7, 7, 7)),
+                ]
+            }
+        }
+        #[inline(always)]
+        fn deinterleave(self, v: [Self::F; 3]) -> [Self::F; 3] {
+            // Float 3m + c is component c of vertex m; two blends gather each component's
+            // eight values into one register (out of order), one permutation puts them in
+            // vertex order.
+            unsafe {
+                let [a, b, c] = v;
                 let x = _mm256_blend_ps::<0b0010_0100>(_mm256_blend_ps::<0b1001_0010>(a, b), c);
                 let y = _mm256_blend_ps::<0b0100_1001>(_mm256_blend_ps::<0b0010_0100>(a, b), c);
                 let z = _mm256_blend_ps::<0b1001_0010>(_mm256_blend_ps::<0b0100_1001>(a, b), c);
@@ -380,7 +490,7 @@ mod avx2 {
                 let p = p.add(3 * rows.shift);
                 macro_rules! row {
                     ($l:literal) => {
-                        _mm_loadu_ps(p.offset(*rows.o.get_unchecked($l)))
+                        _mm_loadu_ps(p.offset(rows.row($l)))
                     };
                 }
                 let v0 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(row!(0)), row!(4));
@@ -422,16 +532,16 @@ mod avx2 {
                     );
                     return super::stepped::<Self, true>(self, x, d, a);
                 }
-                let o = &rows.o;
                 let (p, dp) = (p.add(3 * rows.shift), dp.add(3 * rows.shift));
                 let pair = |lo: usize, hi: usize| {
+                    let (lo, hi) = (rows.row(lo), rows.row(hi));
                     let x = _mm256_insertf128_ps::<1>(
-                        _mm256_castps128_ps256(_mm_loadu_ps(p.offset(o[lo]))),
-                        _mm_loadu_ps(p.offset(o[hi])),
+                        _mm256_castps128_ps256(_mm_loadu_ps(p.offset(lo))),
+                        _mm_loadu_ps(p.offset(hi)),
                     );
                     let d = _mm256_insertf128_ps::<1>(
-                        _mm256_castps128_ps256(_mm_loadu_ps(dp.offset(o[lo]))),
-                        _mm_loadu_ps(dp.offset(o[hi])),
+                        _mm256_castps128_ps256(_mm_loadu_ps(dp.offset(lo))),
+                        _mm_loadu_ps(dp.offset(hi)),
                     );
                     _mm256_add_ps(x, _mm256_mul_ps(d, a))
                 };
@@ -445,6 +555,41 @@ mod avx2 {
                     _mm256_shuffle_ps::<0xEE>(t0, t2),
                     _mm256_shuffle_ps::<0x44>(t1, t3),
                 ]
+            }
+        }
+        #[inline(always)]
+        unsafe fn vec3s_pair(
+            self,
+            p: *const f32,
+            dp: *const f32,
+            n: usize,
+            rows: &super::Rows,
+            j: Self::I,
+        ) -> ([Self::F; 3], [Self::F; 3]) {
+            // SAFETY: as in `vec3s`, each lane's row read once for both vectors.
+            unsafe {
+                let last = _mm256_set1_epi32(n as i32 - 1);
+                if rows.may_name_last
+                    && _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0
+                {
+                    let j3 = self.times3(j);
+                    return (super::gather3(self, p, j3), super::gather3(self, dp, j3));
+                }
+                let (p, dp) = (p.add(3 * rows.shift), dp.add(3 * rows.shift));
+                let mut v = [_mm256_setzero_ps(); 4];
+                let mut u = [_mm256_setzero_ps(); 4];
+                for lane in 0..4 {
+                    let (lo, hi) = (rows.row(lane), rows.row(lane + 4));
+                    v[lane] = _mm256_insertf128_ps::<1>(
+                        _mm256_castps128_ps256(_mm_loadu_ps(p.offset(lo))),
+                        _mm_loadu_ps(p.offset(hi)),
+                    );
+                    u[lane] = _mm256_insertf128_ps::<1>(
+                        _mm256_castps128_ps256(_mm_loadu_ps(dp.offset(lo))),
+                        _mm_loadu_ps(dp.offset(hi)),
+                    );
+                }
+                (transpose4(v), transpose4(u))
             }
         }
         #[inline(always)]
@@ -531,6 +676,20 @@ mod avx2 {
             unsafe { _mm256_blendv_ps(b, a, m) }
         }
         #[inline(always)]
+        fn keep(self, m: Self::M, a: Self::F) -> Self::F {
+            // Comparison masks are all ones or all zeros per lane.
+            unsafe { _mm256_and_ps(m, a) }
+        }
+        #[inline(always)]
+        fn iota(self, base: u32) -> Self::I {
+            unsafe {
+                _mm256_add_epi32(
+                    _mm256_set1_epi32(base as i32),
+                    _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+                )
+            }
+        }
+        #[inline(always)]
         fn store(self, a: Self::F) -> [f32; 8] {
             let mut out = [0.0f32; 8];
             // SAFETY: eight floats of room.
@@ -582,7 +741,8 @@ pub(crate) enum Isa {
     Scalar,
     /// AVX2 (x86-64 only, detected at run time).
     Avx2,
-    /// AVX2 for the f32 half, AVX-512F for the f64 half (x86-64 only, detected at run time).
+    /// AVX2 for the f32 half (with the 32 registers of AVX-512VL), AVX-512F for the f64 half
+    /// (x86-64 only, detected at run time).
     Avx512,
 }
 
@@ -612,7 +772,9 @@ impl Isa {
         #[cfg(target_arch = "x86_64")]
         if n < (1 << 27) && std::arch::is_x86_feature_detected!("avx2") {
             all.push(Self::Avx2);
-            if std::arch::is_x86_feature_detected!("avx512f") {
+            if std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512vl")
+            {
                 all.push(Self::Avx512);
             }
         }
@@ -653,6 +815,14 @@ pub(crate) struct Rows {
     may_name_last: bool,
 }
 
+impl Rows {
+    /// The row of lane `l`.
+    #[inline(always)]
+    fn row(&self, l: usize) -> isize {
+        self.o[l]
+    }
+}
+
 /// `v[e..e + 8]` without a bounds check.
 ///
 /// # Safety
@@ -676,34 +846,72 @@ fn assert_entries(sell: &Sell) {
 trait Ends: Copy {
     /// The other ends of entry `e` (of this slice) as lanes and as rows.
     fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows);
+    /// The lanes whose other end (`j` from [`at`](Self::at)) is above their own vertex `own`.
+    #[inline(always)]
+    fn upper<S: Lanes>(self, l: S, j: S::I, own: S::I) -> S::M {
+        l.gt_i(j, own)
+    }
 }
 
-/// A slice whose other ends are 16-bit offsets from its first vertex `base`.
+/// A slice whose other ends are 16-bit offsets from its first vertex `base` (times three with
+/// `TRIPLE`).
 #[derive(Clone, Copy)]
-struct Near<'a> {
+struct Near<'a, const TRIPLE: bool> {
     near: &'a [i16],
     base: u32,
 }
 
-impl Ends for Near<'_> {
+impl<const TRIPLE: bool> Ends for Near<'_, TRIPLE> {
+    #[inline(always)]
+    fn upper<S: Lanes>(self, l: S, j: S::I, own: S::I) -> S::M {
+        // Tripled: `j` is `3 j` (below 2^29: vertex counts below 2^27 take these lanes).
+        l.gt_i(j, if TRIPLE { l.times3(own) } else { own })
+    }
     #[inline(always)]
     fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows) {
         // SAFETY: `e` is an entry of this slice (the caller's arrays checked).
         let p = unsafe { eight(self.near, e) };
         // Volatile reads keep the decode scalar (a sign-extending load and a multiply-by-3
         // address per lane): vectorised, the compiler turns it into 64-bit vector arithmetic
-        // and extractions, which cost more.
+        // and extractions, which cost more (and a vector decode stored and read back as
+        // addresses is fewer instructions but slower). `opaque` keeps the row `3 j` in a
+        // register, so each read of x or d at it scales it by 4 in the address instead of the
+        // decode computing the byte offset `12 j` (one instruction fewer per lane).
+        // A tripled slice stores the rows themselves.
         let o = std::array::from_fn(|k| {
             // SAFETY: eight offsets in bounds (sliced above).
-            3 * unsafe { p.as_ptr().add(k).read_volatile() } as isize
+            let v = unsafe { p.as_ptr().add(k).read_volatile() } as isize;
+            opaque(if TRIPLE { v } else { 3 * v })
         });
         let rows = Rows {
             o,
             shift: self.base as usize,
             may_name_last: false,
         };
-        (l.load_near(p, self.base), rows)
+        let base = if TRIPLE { 3 * self.base } else { self.base };
+        (l.load_near(p, base), rows)
     }
+}
+
+/// `v`, unknown to the optimiser (no instruction: the value stays where it is).
+#[inline(always)]
+fn opaque(v: isize) -> isize {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let mut v = v;
+        // SAFETY: an empty assembly block that claims to change a register; it reads and
+        // writes nothing else.
+        unsafe {
+            std::arch::asm!(
+                "/* {0} */",
+                inout(reg) v,
+                options(pure, nomem, nostack, preserves_flags)
+            )
+        };
+        v
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    v
 }
 
 /// A wide slice: full indices, `far[e - begin]` for entry `e`.
@@ -730,8 +938,15 @@ impl Ends for Far<'_> {
 macro_rules! with_ends {
     ($sell:expr, $s:expr, $ends:ident => $body:expr) => {
         match $sell.far_of($s) {
+            None if $sell.tripled($s) => {
+                let $ends = Near::<true> {
+                    near: &$sell.near,
+                    base: ($s * LANES) as u32,
+                };
+                $body
+            }
             None => {
-                let $ends = Near {
+                let $ends = Near::<false> {
                     near: &$sell.near,
                     base: ($s * LANES) as u32,
                 };
@@ -761,6 +976,9 @@ fn stepped<S: Lanes, const STEP: bool>(l: S, x: [S::F; 3], d: [S::F; 3], a: S::F
 /// The vertices of slice `s` (clamped to the last vertex past the end).
 #[inline(always)]
 fn own_lanes<S: Lanes>(l: S, sell: &Sell, s: usize) -> S::I {
+    if (s + 1) * LANES <= sell.n {
+        return l.iota((s * LANES) as u32);
+    }
     let last = sell.n - 1;
     let own: [u32; 8] = std::array::from_fn(|lane| (s * LANES + lane).min(last) as u32);
     l.load_i(&own)
@@ -813,13 +1031,20 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     let (dp, a) = (d.as_ptr().cast::<f32>(), l.splat(a));
     // SAFETY (all gathers): indices below n, arrays of n entries (the caller's contract).
     let [yx, yy, yz] = unsafe {
-        let x = own_vec3(l, sell, s, own, f.x);
-        let d = if STEP {
-            own_vec3(l, sell, s, own, d)
+        if STEP && (s + 1) * LANES <= sell.n {
+            // A full slice: the step on the 24 floats as stored, then one transpose.
+            let (xs, ds) = (xp.add(3 * LANES * s), dp.add(3 * LANES * s));
+            let y = [0, 8, 16].map(|f| l.add(l.load_at(xs.add(f)), l.mul(l.load_at(ds.add(f)), a)));
+            l.deinterleave(y)
         } else {
-            x
-        };
-        stepped::<S, STEP>(l, x, d, a)
+            let x = own_vec3(l, sell, s, own, f.x);
+            let d = if STEP {
+                own_vec3(l, sell, s, own, d)
+            } else {
+                x
+            };
+            stepped::<S, STEP>(l, x, d, a)
+        }
     };
     let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
     let zero = l.splat(0.0);
@@ -827,36 +1052,46 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     let half64 = l.dsplat(0.5);
     let (mut fx, mut fy, mut fz) = (zero, zero, zero);
     let mut energy = l.dsplat(0.0);
-    // One spring of every lane per step: force always, energy from the upper entries on
-    // (springs to higher vertices only).
-    let upper = sell.upper_entries(s).start;
-    for e in sell.entries(s).step_by(LANES) {
-        let (j, rows) = ends.at(l, e);
-        // SAFETY: `e` is an entry of slice `s` (asserted in bounds by the caller).
-        let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
-        // SAFETY: spring indices are below n, x and d have n entries.
-        let [zx, zy, zz] = unsafe {
-            if STEP {
-                l.vec3s_step(xp, dp, a, sell.n, &rows, j)
-            } else {
-                l.vec3s(xp, sell.n, &rows, j)
-            }
-        };
-        let (ex, ey, ez) = (l.sub(zx, yx), l.sub(zy, yy), l.sub(zz, yz));
-        let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
-        let len = l.sqrt(l2);
-        let inv = l.div(one, len);
-        let ok = l.gt(len, tiny);
-        // A degenerate spring (no direction) adds nothing: its coefficient is zeroed, and
-        // `f + e·0` is `f` bit for bit (`e` is finite there, and a sum that starts at +0 is
-        // never −0), as if the spring were skipped.
-        let c = l.select(ok, l.mul(l.mul(k, l.sub(len, rest)), inv), zero);
-        fx = l.add(fx, l.mul(ex, c));
-        fy = l.add(fy, l.mul(ey, c));
-        fz = l.add(fz, l.mul(ez, c));
-        if e < upper {
-            continue;
-        }
+    // The force of one spring of every lane (entry `e`), with what the energy needs (a macro:
+    // a closure would not inherit the target features, and its lane operations would not
+    // inline).
+    macro_rules! spring {
+        ($e:expr) => {{
+            let e = $e;
+            let (j, rows) = ends.at(l, e);
+            // SAFETY: `e` is an entry of slice `s` (asserted in bounds by the caller).
+            let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
+            // SAFETY: spring indices are below n, x and d have n entries.
+            let z = unsafe {
+                if STEP {
+                    l.vec3s_step(xp, dp, a, sell.n, &rows, j)
+                } else {
+                    l.vec3s(xp, sell.n, &rows, j)
+                }
+            };
+            let (ex, ey, ez) = (l.sub(z[0], yx), l.sub(z[1], yy), l.sub(z[2], yz));
+            let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
+            let len = l.sqrt(l2);
+            let inv = l.div(one, len);
+            let ok = l.gt(len, tiny);
+            // A degenerate spring (no direction) adds nothing: its coefficient is zeroed, and
+            // `f + e·0` is `f` bit for bit (`e` is finite there, and a sum that starts at +0 is
+            // never −0), as if the spring were skipped.
+            let c = l.keep(ok, l.mul(l.mul(k, l.sub(len, rest)), inv));
+            fx = l.add(fx, l.mul(ex, c));
+            fy = l.add(fy, l.mul(ey, c));
+            fz = l.add(fz, l.mul(ez, c));
+            (j, z, len, inv, ok, k, rest)
+        }};
+    }
+    // Force always, energy from the upper entries on (springs to higher vertices only): two
+    // loops, no test per entry.
+    let (entries, upper) = (sell.entries(s), sell.upper_entries(s).start);
+    for e in (entries.start..upper).step_by(LANES) {
+        spring!(e);
+    }
+    for e in (upper..entries.end).step_by(LANES) {
+        let (j, [zx, zy, zz], len, inv, ok, k, rest) = spring!(e);
         // Energy in f64 from exact differences, each spring once (from its lower end): the
         // stretch `|e| − rest` with one Newton step on the f32 length.
         let (ex64, ey64, ez64) = (
@@ -873,10 +1108,10 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         // or padding adds `½·0·st² = +0` to an energy that starts at +0.
         let len64 = l.widen(len);
         let linear = l.dsub(len64, l.widen(rest));
-        let half_inv = l.select(ok, l.mul(half, inv), zero);
+        let half_inv = l.keep(ok, l.mul(half, inv));
         let newton = l.dmul(l.dsub(l2_64, l.dmul(len64, len64)), l.widen(half_inv));
         let stretch = l.dadd(linear, newton);
-        let k_upper = l.select(l.gt_i(j, own), k, zero);
+        let k_upper = l.keep(ends.upper(l, j, own), k);
         let term = l.dmul(l.dmul(l.dmul(half64, l.widen(k_upper)), stretch), stretch);
         energy = l.dadd(energy, term);
     }
@@ -1050,7 +1285,7 @@ fn force_chunk_avx2(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f")]
+#[target_feature(enable = "avx2,avx512f,avx512vl")]
 fn force_chunk_avx512(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
     force_chunk_any(avx512::Avx512, f, first, r)
 }
@@ -1063,7 +1298,7 @@ impl ForceInputs<'_> {
             // SAFETY: `Isa::Avx2` is only returned after the CPU check.
             Isa::Avx2 => unsafe { force_chunk_avx2(self, first, r) },
             #[cfg(target_arch = "x86_64")]
-            // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2 and AVX-512F).
+            // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2, AVX-512F and VL).
             Isa::Avx512 => unsafe { force_chunk_avx512(self, first, r) },
             _ => force_chunk_any(Scalar, self, first, r),
         }
@@ -1086,29 +1321,40 @@ fn direction_chunk<S: Lanes>(
     assert!(step.as_ref().is_none_or(|(x, _)| x.len() == d.len()));
     let full = d.len() / LANES * LANES;
     let b = l.splat(beta);
+    let a = l.splat(step.as_ref().map_or(0.0, |s| s.1));
     let mut slope = 0.0f64;
+    // Elementwise on the floats as stored (no transposes): eight vertices are three registers
+    // of eight floats; only the products `r·d` are regrouped per component for the dot.
     for o in (0..full).step_by(LANES) {
         let (rp, dp) = (
             r[o..].as_ptr().cast::<f32>(),
             d[o..].as_mut_ptr().cast::<f32>(),
         );
-        // SAFETY: eight vectors from `o < full` are in bounds of `r` and `d`.
-        let ([rx, ry, rz], [dx, dy, dz]) = unsafe { (l.load3(rp), l.load3(dp)) };
-        if let Some((x, a)) = step.as_mut() {
+        // SAFETY: eight vectors (24 floats) from `o < full` are in bounds of `r` and `d`.
+        let (rv, dv) = unsafe {
+            (
+                [0, 8, 16].map(|f| l.load_at(rp.add(f))),
+                [0, 8, 16].map(|f| l.load_at(dp.add(f))),
+            )
+        };
+        if let Some((x, _)) = step.as_mut() {
             let xp = x[o..].as_mut_ptr().cast::<f32>();
-            // SAFETY: eight vectors from `o` are in bounds of `x` (same length as `d`).
-            unsafe {
-                let moved = stepped::<S, true>(l, l.load3(xp), [dx, dy, dz], l.splat(*a));
-                l.store3(xp, moved);
+            for (k, dv) in dv.iter().enumerate() {
+                // SAFETY: eight vectors from `o` are in bounds of `x` (same length as `d`).
+                unsafe {
+                    let moved = l.add(l.load_at(xp.add(8 * k)), l.mul(*dv, a));
+                    l.store_at(xp.add(8 * k), moved);
+                }
             }
         }
-        let wv = l.load(&w[o..o + LANES]);
-        let nx = l.add(l.mul(rx, wv), l.mul(dx, b));
-        let ny = l.add(l.mul(ry, wv), l.mul(dy, b));
-        let nz = l.add(l.mul(rz, wv), l.mul(dz, b));
-        // SAFETY: as above.
-        unsafe { l.store3(dp, [nx, ny, nz]) };
-        let rd = l.add(l.add(l.mul(rx, nx), l.mul(ry, ny)), l.mul(rz, nz));
+        let wv = l.spread3(l.load(&w[o..o + LANES]));
+        let nv: [S::F; 3] = std::array::from_fn(|k| l.add(l.mul(rv[k], wv[k]), l.mul(dv[k], b)));
+        for (k, nv) in nv.iter().enumerate() {
+            // SAFETY: as above.
+            unsafe { l.store_at(dp.add(8 * k), *nv) };
+        }
+        let [px, py, pz] = l.deinterleave(std::array::from_fn(|k| l.mul(rv[k], nv[k])));
+        let rd = l.add(l.add(px, py), pz);
         for v in l.store(rd) {
             slope += v as f64;
         }
@@ -1157,21 +1403,21 @@ pub(crate) fn direction(
 #[inline(always)]
 fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32) {
     assert!(x.len() == d.len());
-    let full = x.len() / LANES * LANES;
+    // Elementwise on the floats as stored.
+    let floats = 3 * x.len();
+    let full = floats / LANES * LANES;
+    let (xp, dp) = (x.as_mut_ptr().cast::<f32>(), d.as_ptr().cast::<f32>());
     let av = l.splat(a);
-    for o in (0..full).step_by(LANES) {
-        let (xp, dp) = (
-            x[o..].as_mut_ptr().cast::<f32>(),
-            d[o..].as_ptr().cast::<f32>(),
-        );
-        // SAFETY: eight vectors from `o < full` are in bounds of `x` and `d`.
+    for f in (0..full).step_by(LANES) {
+        // SAFETY: eight floats from `f < full <= floats` are in bounds of `x` and `d`.
         unsafe {
-            let moved = stepped::<S, true>(l, l.load3(xp), l.load3(dp), av);
-            l.store3(xp, moved);
+            let moved = l.add(l.load_at(xp.add(f)), l.mul(l.load_at(dp.add(f)), av));
+            l.store_at(xp.add(f), moved);
         }
     }
-    for i in full..x.len() {
-        x[i] += d[i] * a;
+    for f in full..floats {
+        // SAFETY: `f < floats`, in bounds of both.
+        unsafe { *xp.add(f) += *dp.add(f) * a };
     }
 }
 
@@ -1228,8 +1474,7 @@ fn curvature_chunk<S: Lanes>(
             // SAFETY: `e` is an entry of slice `s` (its arrays checked above).
             let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
             // SAFETY: spring indices are below n, x and d have n entries.
-            let [zx, zy, zz] = unsafe { l.vec3s(xp, n, &rows, j) };
-            let [vx, vy, vz] = unsafe { l.vec3s(dp, n, &rows, j) };
+            let ([zx, zy, zz], [vx, vy, vz]) = unsafe { l.vec3s_pair(xp, dp, n, &rows, j) };
             let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));
             let (ux, uy, uz) = (l.sub(vx, dx), l.sub(vy, dy), l.sub(vz, dz));
             let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
@@ -1242,7 +1487,7 @@ fn curvature_chunk<S: Lanes>(
             let taut = l.max(l.sub(one, l.mul(rest, inv)), zero);
             let term = l.mul(k, l.add(along2, l.mul(taut, transverse)));
             let term = l.select(l.le(l2, tiny2), l.mul(k, uu), term);
-            vertex = l.select(l.gt_i(j, own), l.add(vertex, term), vertex);
+            vertex = l.select(ends.upper(l, j, own), l.add(vertex, term), vertex);
         }
             vertex
         });
@@ -1306,7 +1551,7 @@ fn curvature_chunk_avx2(
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f")]
+#[target_feature(enable = "avx2,avx512f,avx512vl")]
 fn curvature_chunk_avx512(
     sell: &Sell,
     x: &[Vec3],
@@ -1333,7 +1578,7 @@ pub(crate) fn curvature(
         // SAFETY: `Isa::Avx2` is only returned after the CPU check.
         Isa::Avx2 => unsafe { curvature_chunk_avx2(sell, x, d, anchors, slices) },
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2 and AVX-512F).
+        // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2, AVX-512F and VL).
         Isa::Avx512 => unsafe { curvature_chunk_avx512(sell, x, d, anchors, slices) },
         _ => curvature_chunk(Scalar, sell, x, d, anchors, slices),
     }
@@ -1529,6 +1774,8 @@ mod tests {
         let mut edges: Vec<[u32; 2]> = (0..n - 1).map(|i| [i, i + 1]).collect();
         edges.extend((0..n - 2).step_by(2).map(|i| [i, i + 2]));
         edges.extend((0..40).map(|i| [i * 7, n - 1 - i * 997]));
+        // Springs 20 000 vertices long: 16-bit offsets, but too long to store times three.
+        edges.extend((0..30).map(|i| [1000 + i * 13, 21_000 + i * 13]));
         let k: Vec<f32> = (0..edges.len()).map(|e| 10.0 + (e % 7) as f32).collect();
         let rest: Vec<f32> = edges
             .iter()
@@ -1537,6 +1784,10 @@ mod tests {
         let system = SpringSystem::new(&pos, &edges, &k, &rest).unwrap();
         let sell = &system.sell;
         assert!(!sell.wide.is_empty() && sell.wide.len() < sell.slices() / 10);
+        // All three storages of the other ends occur.
+        let near = |s: &usize| sell.far_of(*s).is_none();
+        assert!((0..sell.slices()).any(|s| near(&s) && !sell.tripled(s)));
+        assert!((0..sell.slices()).any(|s| near(&s) && sell.tripled(s)));
         let x: Vec<Vec3> = (0..n as usize)
             .map(|i| system.to_internal(&pos)[i] + Vec3::splat((i as f32).sin() * 1e-4))
             .collect();

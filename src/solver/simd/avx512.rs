@@ -9,8 +9,9 @@ use std::arch::x86_64::*;
 use super::Lanes;
 use super::avx2::Avx2;
 
-/// AVX-512 lanes; only constructed after `is_x86_feature_detected!("avx512f")` (and AVX2), and
-/// only used inside `#[target_feature(enable = "avx2,avx512f")]` functions (every method is
+/// AVX-512 lanes; only constructed after `is_x86_feature_detected!` for AVX-512F, AVX-512VL and
+/// AVX2, and
+/// only used inside `#[target_feature(enable = "avx2,avx512f,avx512vl")]` functions (every method is
 /// inlined there).
 #[derive(Clone, Copy)]
 pub(crate) struct Avx512;
@@ -49,6 +50,24 @@ impl Lanes for Avx512 {
         unsafe { A.load3(p) }
     }
     #[inline(always)]
+    unsafe fn load_at(self, p: *const f32) -> Self::F {
+        // SAFETY: the caller's contract.
+        unsafe { A.load_at(p) }
+    }
+    #[inline(always)]
+    unsafe fn store_at(self, p: *mut f32, a: Self::F) {
+        // SAFETY: the caller's contract.
+        unsafe { A.store_at(p, a) }
+    }
+    #[inline(always)]
+    fn deinterleave(self, v: [Self::F; 3]) -> [Self::F; 3] {
+        A.deinterleave(v)
+    }
+    #[inline(always)]
+    fn spread3(self, w: Self::F) -> [Self::F; 3] {
+        A.spread3(w)
+    }
+    #[inline(always)]
     unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
         // SAFETY: the caller's contract.
         unsafe { A.load8x8(p) }
@@ -70,6 +89,18 @@ impl Lanes for Avx512 {
     ) -> [Self::F; 3] {
         // SAFETY: the caller's contract.
         unsafe { A.vec3s_step(p, dp, a, n, rows, j) }
+    }
+    #[inline(always)]
+    unsafe fn vec3s_pair(
+        self,
+        p: *const f32,
+        dp: *const f32,
+        n: usize,
+        rows: &super::Rows,
+        j: Self::I,
+    ) -> ([Self::F; 3], [Self::F; 3]) {
+        // SAFETY: the caller's contract.
+        unsafe { A.vec3s_pair(p, dp, n, rows, j) }
     }
     #[inline(always)]
     unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
@@ -136,6 +167,14 @@ impl Lanes for Avx512 {
     #[inline(always)]
     fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
         A.select(m, a, b)
+    }
+    #[inline(always)]
+    fn keep(self, m: Self::M, a: Self::F) -> Self::F {
+        A.keep(m, a)
+    }
+    #[inline(always)]
+    fn iota(self, base: u32) -> Self::I {
+        A.iota(base)
     }
     #[inline(always)]
     fn store(self, a: Self::F) -> [f32; 8] {
