@@ -740,7 +740,7 @@ impl SkinCollision {
         let interpolate = self
             .colliders
             .iter()
-            .map(|c| c.frame_motion_m() + step >= 0.5 * h_min)
+            .map(|c| substeps > 1 && c.frame_motion_m() + step >= 0.5 * h_min)
             .collect();
         self.plan = Some(Plan {
             substeps,
