@@ -1042,3 +1042,40 @@ fn projections_in_a_shuffled_order_keep_the_last_positions_of_every_pass() {
     assert!(skin.begin_frame(&mut y).unwrap().substeps > 1);
     assert_eq!(y[0], x[0], "substeps restart from the last pass's position");
 }
+
+#[test]
+fn the_query_cache_carried_over_a_frame_skips_far_vertices_with_the_same_answers() {
+    // A sheet over a ball that moves a little each frame: from the carried-over cache the
+    // frame's pass skips the vertices far from the ball whole; from a cleared one it resolves
+    // every vertex. The positions and contacts are the same.
+    let mesh = sheet(24, 2.0, 0.3);
+    let config = ContactConfig {
+        thickness_m: 0.01,
+        ..ContactConfig::DEFAULT
+    };
+    let mut warm = SkinCollision::new(mesh.positions().len(), config).unwrap();
+    let id = warm.add_collider(ColliderMesh::ball(0.3).unwrap());
+    // The sheet rests on the ball's top.
+    let mut xa = mesh.positions().to_vec();
+    warm.advance_frame(&mut xa).unwrap();
+    let mut cold = warm.clone();
+    let mut xb = xa.clone();
+    for frame in 1..5 {
+        // A substep per frame (the ball moves less than half the thickness).
+        let pose = Pose::from_translation(Vec3::new(0.002 * frame as f32, 0.0, 0.0));
+        for s in [&mut warm, &mut cold] {
+            s.collider_mut(id).unwrap().set_pose(pose).unwrap();
+        }
+        warm.clear_frame_state();
+        cold.clear_query_cache();
+        warm.advance_frame(&mut xa).unwrap();
+        cold.advance_frame(&mut xb).unwrap();
+        assert_eq!(xa, xb, "frame {frame}");
+        let (w, c) = (warm.diagnostics(), cold.diagnostics());
+        assert_eq!(w.contacts, c.contacts);
+        assert!(c.contacts > 0, "frame {frame}: {c:?}");
+        assert_eq!((w.substeps, c.substeps), (1, 1));
+        assert_eq!(c.skipped_vertices, 0);
+        assert!(w.skipped_vertices > 0, "frame {frame}: {w:?}");
+    }
+}

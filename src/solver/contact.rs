@@ -41,7 +41,9 @@ pub(crate) const PROPORTIONING: f64 = 1.0;
 /// What [`ContactSet::constrain`] changed.
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct Constrained {
-    /// A contact is held that was not at the previous call (the directions must restart).
+    /// A contact is held that was not at the previous call (the caller restarts its
+    /// directions only in a solve's first iterations; later it keeps them, projected onto
+    /// the new contact's tangent plane).
     pub new_hold: bool,
     /// The pulling contacts were released (a proportioning step).
     pub released: bool,
@@ -69,6 +71,8 @@ pub(crate) struct ContactSet {
     held: Vec<Held>,
     /// `(vertex, mask)` of the held vertices in the previous iteration.
     previous: Vec<(u32, u32)>,
+    /// The vertices that lost a held contact in the last proportioning release.
+    released: Vec<u32>,
 }
 
 impl ContactSet {
@@ -87,10 +91,12 @@ impl ContactSet {
     /// outward force `β` is then the *chopped* residual, which leaves `r` but is reported
     /// apart (the convergence test counts it). Only when the chopped residual outweighs the
     /// free one (`Σ w β² > Γ² Σ w r²`, [`PROPORTIONING`] `= Γ`) are all the pulling contacts
-    /// released at once: a proportioning step, as in Dostál's MPRGP. The caller restarts the
-    /// directions on a release as on a new hold. Releasing each contact as soon as its force turned (the old
-    /// policy) let the contacts at the rim of a patch, whose normal force is near zero, be held
-    /// and released every other iteration.
+    /// released at once: a proportioning step, as in Dostál's MPRGP. The caller then steps
+    /// along the released vertices' forces only
+    /// ([`proportioning_direction`](Self::proportioning_direction)) and restarts the
+    /// directions after it. Releasing each contact as soon as its force turned (the old
+    /// policy) let the contacts at the rim of a patch, whose normal force is near zero, be
+    /// held and released every other iteration.
     pub fn constrain(&mut self, r: &mut [Vec3], w: &[f32], sums: &mut Sums) -> Constrained {
         let mut previous = std::mem::take(&mut self.previous);
         previous.clear();
@@ -125,6 +131,7 @@ impl ContactSet {
         release: bool,
     ) -> Decision {
         let mut out = Decision::default();
+        self.released.clear();
         self.held.clear();
         self.held_flags.clear();
         self.held_flags.resize(self.list.len(), false);
@@ -175,6 +182,9 @@ impl ContactSet {
                     }
                 }
             }
+            if release && prev_mask & !held.mask != 0 {
+                self.released.push(vertex);
+            }
             if held.mask != 0 {
                 let g = held.tangent(f);
                 let wi = w[vertex as usize];
@@ -189,6 +199,28 @@ impl ContactSet {
             k = end;
         }
         out
+    }
+
+    /// The proportioning step's direction after a release: `d = w r` at the released vertices
+    /// (their remaining held normals projected out), zero elsewhere; returns the slope `Σ r·d`.
+    ///
+    /// Only the released vertices move, as in MPRGP's proportioning step (a step along the
+    /// chopped gradient), and the line search sizes the step for them alone. A restart along
+    /// the whole preconditioned residual instead moves them by the step the rest of the mesh
+    /// wants.
+    pub fn proportioning_direction(&self, d: &mut [Vec3], r: &[Vec3], w: &[f32]) -> f64 {
+        d.fill(Vec3::ZERO);
+        let mut slope = 0.0f64;
+        for &v in &self.released {
+            let i = v as usize;
+            let mut z = r[i] * w[i].max(0.0);
+            if let Ok(h) = self.held.binary_search_by_key(&v, |h| h.vertex) {
+                z = self.held[h].tangent(z);
+            }
+            d[i] = z;
+            slope += f64::from(r[i].dot(z));
+        }
+        slope
     }
 
     /// Re-applies the held set's projection to a force `r` gathered again at the same point.
@@ -268,6 +300,13 @@ mod tests {
         assert_eq!(r[0], Vec3::new(0.0, 0.0, 0.1));
         assert_eq!(c.chopped_rr, 0.0);
         assert!((s.rr - (0.01 + 1e-4)).abs() < 1e-9);
+
+        // The proportioning step moves the released vertex alone, along its preconditioned
+        // force: d = w r there, zero elsewhere, slope Σ w r².
+        let mut d = vec![Vec3::ONE; 2];
+        let slope = set.proportioning_direction(&mut d, &r, &[0.5, 1.0]);
+        assert_eq!(d, [Vec3::new(0.0, 0.0, 0.05), Vec3::ZERO]);
+        assert!((slope - 0.005).abs() < 1e-9, "{slope}");
 
         // A contact never held is not held by a pull.
         let mut r = vec![Vec3::new(0.0, 0.0, 0.1), Vec3::new(1.0, 0.0, 0.0)];

@@ -19,6 +19,14 @@ use contact::ContactSet;
 use kernels::{Frame, Sums, advance, dot, step_and_update_direction, update_direction};
 use sell::Sell;
 
+/// Iterations at the start of a projected solve in which a newly held contact restarts the
+/// conjugate directions. A solve after a collider moved (a substep) holds whole rings of
+/// vertices in its first iterations; later holds come one by one at the rim of a contact patch,
+/// and restarting on each of those had a contact frame run as steepest descent (tube-10k, 60
+/// frames of `examples/tube_profile`: 10,077 iterations with restarts on every hold, 8,079 with
+/// early ones only; with 2 instead of 3, the swinging-bone test lets a ring escape).
+const EARLY_HOLD_RESTARTS: u32 = 3;
+
 /// One spring as seen from one of its ends (the system stores each twice, once per end).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[repr(C)]
@@ -594,6 +602,8 @@ impl SpringSystem {
         let mut iterations = 0;
         let mut stop = StopReason::Budget;
         let (mut best, mut best_at) = (r_norm, 0u32);
+        // The last step was a proportioning step: the next direction starts afresh.
+        let mut after_proportioning = false;
         while iterations < config.max_iterations {
             if converged(r_norm) {
                 stop = StopReason::Converged;
@@ -652,7 +662,8 @@ impl SpringSystem {
             // a projection that keeps the held set only corrects a drift, and the held
             // vertices' residuals are tangent to their contacts before and after.
             let rz_old = sums.rz_old;
-            let mut restart = false;
+            let mut proportioning = false;
+            let mut hold_restart = false;
             // The step `x += a d` lands exactly on the trial point; without a projection it is
             // fused into the direction update below.
             let step_now = projection.is_some();
@@ -667,18 +678,26 @@ impl SpringSystem {
                 contacts.refresh(p.active_contacts());
                 let c = contacts.constrain(&mut r, &inv_diag, &mut sums);
                 chopped_rr = c.chopped_rr;
-                // The directions restart whenever the face changes: a newly held vertex loses
-                // the normal part of the old direction, whose conjugacy then means nothing, and
-                // a proportioning release lets the released contacts move along their full
-                // force. The proportioning keeps such changes rare: releasing every contact as
-                // soon as its force turned had the contacts at the rim of a patch held and
-                // dropped every other iteration, and a contact frame ran as steepest descent.
-                restart = c.released || c.new_hold;
+                // A release restarts the directions with a proportioning step: only the
+                // released vertices move, along their own forces (see
+                // `ContactSet::proportioning_direction`), and the conjugate gradients start
+                // afresh after it. A new hold only projects the old direction onto the new
+                // contact's tangent plane and keeps the conjugacy of the rest of the mesh:
+                // restarting on every new hold (as on a release) had a contact frame run as
+                // steepest descent while the contacts at a patch's rim landed one by one,
+                // each release followed by a few re-holds.
+                proportioning = c.released;
+                // Except in a solve's first iterations, where a collider that moved since the
+                // last solve (a substep) pushes whole rings of vertices onto it: those holds
+                // restart the directions, whose conjugacy they break for most of the mesh.
+                hold_restart = c.new_hold && iterations <= EARLY_HOLD_RESTARTS;
                 p.hold(&contacts.held_flags);
             }
-            if restart {
-                // A new contact is progress the residual does not show (it may jump up as
-                // the contact set changes): the stagnation window starts again.
+            if proportioning || hold_restart {
+                // A release is progress the residual does not show (it may jump up as the
+                // released contacts' pulls rejoin the free residual): the stagnation window
+                // starts again; so does an early new hold. Later new holds restart neither it
+                // nor the directions.
                 best_at = iterations;
                 best = (sums.rr + chopped_rr).sqrt();
             }
@@ -686,14 +705,19 @@ impl SpringSystem {
                 history.push(energy);
             }
             r_norm = (sums.rr + chopped_rr).sqrt();
-            // Polak-Ribiere+, preconditioned; restarted when contacts are released.
-            let beta = if restart || rz <= 0.0 {
+            // Polak-Ribiere+, preconditioned; restarted after a proportioning step.
+            let beta = if after_proportioning || hold_restart || rz <= 0.0 {
                 0.0
             } else {
                 ((sums.rzr - rz_old) / rz).max(0.0)
             };
             rz = sums.rzr;
-            slope = if step_now {
+            after_proportioning = proportioning;
+            slope = if proportioning {
+                // A proportioning step: only the released vertices move (see
+                // `ContactSet::proportioning_direction`); the next iteration restarts.
+                contacts.proportioning_direction(&mut d, &r, &inv_diag)
+            } else if step_now {
                 update_direction(&mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch)
             } else {
                 let (b, scratch) = (beta as f32, &mut scalar_scratch);
