@@ -590,26 +590,17 @@ impl SkinCollision {
     /// must depend only on checkpointed state starts from (see
     /// [`friction_anchors`](Self::friction_anchors)).
     pub fn clear_query_cache(&mut self) {
-        self.view.discard();
-        for s in &mut self.states {
-            *s = VertexState {
-                contact: s.contact,
-                ..VertexState::NEW
-            };
-        }
+        self.clear_frame_state();
         self.reach.fill(Reach::NEW);
-        self.last.fill(Vec3::NAN);
         self.slots = vec![Slot::NEW; self.states.len() * self.colliders.len()];
-        self.held_vertices.clear();
-        self.active.clear();
-        self.active_owner.clear();
     }
 
     /// Forgets what only the last frame's passes need (each vertex's last position, touches and
     /// held contacts) but keeps the query cache (closest triangles and distance bounds) and the
-    /// last contacts: a frame starts from this with the same plan and answers as from
-    /// [`clear_query_cache`](Self::clear_query_cache), only its first pass needs far fewer
-    /// exact searches.
+    /// last contacts: a frame starts from this with the same plan as from
+    /// [`clear_query_cache`](Self::clear_query_cache) and the same answers (up to which of two
+    /// surface features at exactly the same distance is named), only its first pass needs far
+    /// fewer exact searches.
     pub fn clear_frame_state(&mut self) {
         self.view.discard();
         for s in &mut self.states {
