@@ -699,6 +699,8 @@ impl SkinCollision {
         for s in &mut self.states {
             s.anchor = s.contact;
         }
+        // The plan reads the cached bounds: none may survive a collider replaced in place.
+        self.collider_travel();
         let motion = self.reaching_motion(x);
         let h_min = self.thickness.iter().copied().fold(f32::INFINITY, f32::min);
         let wanted = if h_min > 0.0 {

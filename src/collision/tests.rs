@@ -997,6 +997,41 @@ fn a_collider_replaced_in_place_is_seen_by_the_next_pass() {
 }
 
 #[test]
+fn a_collider_replaced_in_place_is_seen_by_the_next_frame_plan() {
+    // The plan skips pairs on cached distance bounds, which are measured against each
+    // collider's travel: a replacement whose travel restarted below the old one's must not
+    // inherit them. The vertex then needs substeps, as for a skin that never saw the old ball.
+    let config = ContactConfig {
+        thickness_m: 0.01,
+        ..ContactConfig::DEFAULT
+    };
+    let mut skin = SkinCollision::new(1, config).unwrap();
+    let id = skin.add_collider(ColliderMesh::ball(0.1).unwrap());
+    let mut x = vec![Vec3::new(0.0, 0.0, 0.5)];
+    // The old ball wanders far to the side (a long travel) and comes back.
+    for k in 0..20 {
+        let side = if k % 2 == 0 { 5.0 } else { 0.0 };
+        let pose = Pose::from_translation(Vec3::new(side, 0.0, 0.0));
+        skin.collider_mut(id).unwrap().set_pose(pose).unwrap();
+        skin.clear_frame_state();
+        skin.advance_frame(&mut x).unwrap();
+    }
+    let moved = |mut ball: ColliderMesh| {
+        let pose = Pose::from_translation(Vec3::new(0.0, 0.0, 0.395));
+        ball.set_pose(pose).unwrap();
+        ball
+    };
+    *skin.collider_mut(id).unwrap() = moved(ColliderMesh::ball(0.1).unwrap());
+    skin.clear_frame_state();
+    let plan = skin.begin_frame(&mut x.clone()).unwrap();
+    let mut fresh = SkinCollision::new(1, config).unwrap();
+    fresh.add_collider(moved(ColliderMesh::ball(0.1).unwrap()));
+    let expected = fresh.begin_frame(&mut x.clone()).unwrap();
+    assert!(expected.substeps > 1, "{expected:?}");
+    assert_eq!(plan, expected);
+}
+
+#[test]
 fn projections_in_a_shuffled_order_keep_the_last_positions_of_every_pass() {
     // The swept test of a projection needs each vertex's position after the previous pass,
     // whichever order that pass ran in; so does the next frame's plan.
