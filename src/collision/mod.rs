@@ -876,9 +876,10 @@ impl SkinCollision {
 
     /// Runs the next substep of the frame begun by [`begin_frame`](Self::begin_frame): colliders
     /// to their interpolated state (poses slerped; a deforming mesh's vertices interpolated and
-    /// its BVH refitted, unless its whole frame motion fits in one substep), the skin's warm-start motion advanced, one contact pass. Returns how many
-    /// substeps remain; after the last one the colliders' state becomes their previous-frame
-    /// state. Without a frame begun it does nothing and returns 0.
+    /// its BVH refitted, unless its whole frame motion fits in one substep), the skin's
+    /// warm-start motion advanced, one contact pass. Returns how many substeps remain; after
+    /// the last one the colliders' state becomes their previous-frame state. Without a frame
+    /// begun it does nothing and returns 0.
     pub fn substep(&mut self, x: &mut [Vec3]) -> Result<u32, CollisionError> {
         let n = self.vertex_count();
         if x.len() != n {
