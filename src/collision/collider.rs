@@ -330,11 +330,12 @@ impl ColliderMesh {
 
     /// Bound on how far any surface point moved since the previous frame, m.
     pub(crate) fn frame_motion_m(&self) -> f32 {
-        let deform = match &self.shape {
-            Shape::Mesh(m) => max_displacement(&m.prev, &m.current),
-            _ => 0.0,
-        };
-        deform + pose_motion(&self.local_aabb, &self.prev_pose, &self.pose)
+        self.frame_deform_m() + self.frame_pose_motion_m()
+    }
+
+    /// Bound on how far the pose change since the previous frame moved any surface point, m.
+    pub(crate) fn frame_pose_motion_m(&self) -> f32 {
+        pose_motion(&self.local_aabb, &self.prev_pose, &self.pose)
     }
 
     /// Puts the collider in the state a fraction `s` of the way from the previous frame to the

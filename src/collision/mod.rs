@@ -375,16 +375,12 @@ struct Counters {
     swept_hits: u64,
 }
 
-/// What one chunk of a pass did.
+/// What a pass (or one chunk of it) did.
 #[derive(Debug, Default)]
 struct ChunkPass {
     counters: Counters,
-    /// Vertices still too close after the last round (pass order, increasing).
+    /// Vertices still too close after the last round (caller's indices, increasing).
     unresolved: Vec<u32>,
-    /// Vertices the pass moved (increasing).
-    moved: Vec<u32>,
-    /// Vertices touching a collider after the pass (increasing).
-    touching: Vec<u32>,
 }
 
 impl Counters {
@@ -778,13 +774,14 @@ impl SkinCollision {
             .map(|c| {
                 let (prev, pose) = (c.prev_pose(), c.pose());
                 let delta = pose.rotation * prev.rotation.inverse();
+                let deform = c.frame_deform_m();
                 Motion {
                     prev,
                     pose,
                     shift: prev.translation.distance(pose.translation),
                     angle: delta.normalize().to_axis_angle().1.abs(),
-                    deform: c.frame_deform_m(),
-                    global: c.frame_motion_m(),
+                    deform,
+                    global: deform + c.frame_pose_motion_m(),
                     travel: c.travel_m(),
                 }
             })
@@ -1046,16 +1043,9 @@ impl SkinCollision {
                     let slots = &mut slots[o * nc..(o + 1) * nc];
                     let (moved, bad) =
                         ctx.resolve(p, hs[o], (reach, last), state, slots, &mut done.counters);
-                    let v = (chunk * CHUNK + o) as u32;
-                    if moved {
-                        done.counters.moved += 1;
-                        done.moved.push(v);
-                    }
+                    done.counters.moved += u64::from(moved);
                     if bad {
-                        done.unresolved.push(v);
-                    }
-                    if state.touches[0].collider != NONE {
-                        done.touching.push(v);
+                        done.unresolved.push((chunk * CHUNK + o) as u32);
                     }
                 }
                 done.counters.skipped_bound += skipped * nc as u64;
@@ -1067,8 +1057,6 @@ impl SkinCollision {
         for c in per_chunk {
             total.counters.add(&c.counters);
             total.unresolved.extend(c.unresolved);
-            total.moved.extend(c.moved);
-            total.touching.extend(c.touching);
         }
         total
     }
@@ -1110,13 +1098,12 @@ impl Projection for SkinCollision {
             self.diagnostics.length_mismatch = true;
             return false;
         }
-        let Some(done) = self.project_pass(x) else {
+        let Some((done, mut touching)) = self.project_pass(x) else {
             return false;
         };
         let moved = done.counters.moved > 0;
         // The touching vertices in the solver's order, each with its contacts in resolution
         // order.
-        let mut touching = done.touching;
         touching.sort_unstable();
         self.record(done.counters, done.unresolved);
         let stick = self.config.friction >= 1.0;

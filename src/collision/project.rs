@@ -17,7 +17,7 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::{CHUNK, Counters, Ctx, NONE, Reach, SkinCollision};
+use super::{CHUNK, ChunkPass, Counters, Ctx, NONE, Reach, SkinCollision};
 
 /// The skip tests and last positions in the solver's order (see the module docs).
 #[derive(Debug, Clone, Default)]
@@ -59,15 +59,6 @@ fn test_of(r: &Reach, travel: f64) -> (Vec3, f32) {
     (r.at, limit2)
 }
 
-/// What a projection pass did.
-pub(super) struct ProjectPass {
-    pub counters: Counters,
-    /// Vertices still too close after the last round (caller's indices, increasing).
-    pub unresolved: Vec<u32>,
-    /// `(internal, caller's)` index of every vertex touching a collider after the pass.
-    pub touching: Vec<(u32, u32)>,
-}
-
 /// One resolved vertex.
 struct Resolved {
     /// Internal index.
@@ -100,8 +91,10 @@ impl SkinCollision {
     }
 
     /// A projection pass over `x` in the solver's order (`self.rank_of`, already checked to be
-    /// a permutation), with the swept test; `None` when there is nothing to collide with.
-    pub(super) fn project_pass(&mut self, x: &mut [Vec3]) -> Option<ProjectPass> {
+    /// a permutation), with the swept test: what it did, and the `(internal, caller's)` index
+    /// of every vertex touching a collider after it; `None` when there is nothing to collide
+    /// with.
+    pub(super) fn project_pass(&mut self, x: &mut [Vec3]) -> Option<(ChunkPass, Vec<(u32, u32)>)> {
         let nc = self.colliders.len();
         let n = x.len();
         if nc == 0 || n == 0 {
@@ -203,11 +196,11 @@ impl SkinCollision {
             })
             .collect();
 
-        let mut pass = ProjectPass {
+        let mut pass = ChunkPass {
             counters,
             unresolved: Vec::new(),
-            touching: Vec::new(),
         };
+        let mut touching = Vec::new();
         let view = &mut self.view;
         for (done, counters) in resolved {
             pass.counters.add(&counters);
@@ -223,11 +216,11 @@ impl SkinCollision {
                     pass.unresolved.push(r.o);
                 }
                 if r.touching {
-                    pass.touching.push((r.i, r.o));
+                    touching.push((r.i, r.o));
                 }
             }
         }
-        Some(pass)
+        Some((pass, touching))
     }
 
     /// Rebuilds the skip tests in the solver's order for the colliders' summed travel
