@@ -275,7 +275,8 @@ impl Contact {
     };
 }
 
-/// A collider a vertex touches after a pass (within the contact band).
+/// A collider whose surface a vertex lies on after a pass (within `tolerance_m` of the
+/// thickness): a contact the solver may hold.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Touch {
     /// The collider ([`NONE`]: no contact in this slot).
@@ -1121,10 +1122,11 @@ impl Projection for SkinCollision {
         moved
     }
 
-    /// Every vertex within the contact band (`thickness × (1 + contact_band)`) of a collider
-    /// after the last projection, one entry per collider (at most two), with the outward
-    /// normal at its closest surface point. Sticks with `friction == 1` on the collider the
-    /// vertex is anchored to.
+    /// Every vertex on a collider's surface (within `tolerance_m` of the thickness, or inside
+    /// it when unresolved) after the last projection, one entry per collider (at most two),
+    /// with the outward normal at its closest surface point. Sticks with `friction == 1` on
+    /// the collider the vertex is anchored to. A vertex in the contact band but off the
+    /// surface is not reported: a hold would snap it onto the surface.
     fn active_contacts(&self) -> &[ActiveContact] {
         &self.active
     }
@@ -1237,7 +1239,11 @@ impl Ctx<'_> {
                     coords: proj.coords,
                 };
                 touching = contact;
-                if touches < TOUCHES {
+                // Only a contact at the surface goes to the solver: one in the band but off the
+                // surface would be held there and snapped onto it by the next projection (the
+                // lift below), a pull that the next iteration releases and the one after holds
+                // again.
+                if touches < TOUCHES && s <= h + tol {
                     state.touches[touches] = Touch {
                         collider: c as u32,
                         normal: pose.transform_vector(proj.normal),
