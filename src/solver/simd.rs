@@ -18,7 +18,7 @@ use glam::Vec3;
 
 use super::VertexAnchor;
 use super::kernels::Sums;
-use super::sell::{LANES, Sell};
+use super::sell::{LANES, PAIR_LANES, Refs, Sell};
 
 /// Eight lanes of f32 (and f64) arithmetic.
 pub(crate) trait Lanes: Copy {
@@ -113,6 +113,17 @@ pub(crate) trait Lanes: Copy {
     /// # Safety
     /// 24 floats from `p` must be writable.
     unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]);
+    /// The eight `(k, rest)` pairs of one upper slot at `p` (16 floats, the pairs in the lane
+    /// order [`PAIR_LANES`]) as the lanes `(k, rest)`.
+    ///
+    /// # Safety
+    /// 16 floats from `p` must be readable.
+    unsafe fn pairs(self, p: *const f32) -> (Self::F, Self::F);
+    /// The pairs `p[2 o[l]]`, `p[2 o[l] + 1]` per lane `l` as the lanes `(k, rest)`.
+    ///
+    /// # Safety
+    /// The two floats at every `p + 2 o[l]` must be readable.
+    unsafe fn pairs_at(self, p: *const f32, o: &[isize; 8]) -> (Self::F, Self::F);
     /// Lanes whose sign bit is set (`-0.0` included).
     fn negative(self, a: Self::F) -> Self::M;
     /// Eight f64 from an array.
@@ -223,6 +234,24 @@ impl Lanes for Scalar {
                 unsafe { *p.add(3 * l + c) = v[l] };
             }
         }
+    }
+    #[inline(always)]
+    unsafe fn pairs(self, p: *const f32) -> (Self::F, Self::F) {
+        // SAFETY: the caller guarantees 16 readable floats.
+        let at = |l: usize, c: usize| unsafe { *p.add(2 * PAIR_LANES[l] + c) };
+        (
+            std::array::from_fn(|l| at(l, 0)),
+            std::array::from_fn(|l| at(l, 1)),
+        )
+    }
+    #[inline(always)]
+    unsafe fn pairs_at(self, p: *const f32, o: &[isize; 8]) -> (Self::F, Self::F) {
+        // SAFETY: the caller guarantees every pair is readable.
+        let at = |l: usize, c: usize| unsafe { *p.offset(2 * o[l]).add(c) };
+        (
+            std::array::from_fn(|l| at(l, 0)),
+            std::array::from_fn(|l| at(l, 1)),
+        )
     }
     #[inline(always)]
     fn negative(self, a: Self::F) -> Self::M {
@@ -609,6 +638,34 @@ mod avx2 {
             }
         }
         #[inline(always)]
+        unsafe fn pairs(self, p: *const f32) -> (Self::F, Self::F) {
+            // SAFETY: the caller guarantees 16 readable floats. The pairs of lanes 0, 1, 4, 5
+            // then 2, 3, 6, 7: the even floats of each 128-bit half are k in lane order.
+            unsafe {
+                let (a, b) = (_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(8)));
+                (
+                    _mm256_shuffle_ps::<0x88>(a, b),
+                    _mm256_shuffle_ps::<0xDD>(a, b),
+                )
+            }
+        }
+        #[inline(always)]
+        unsafe fn pairs_at(self, p: *const f32, o: &[isize; 8]) -> (Self::F, Self::F) {
+            // SAFETY: the caller guarantees every pair is readable. Each pair is one 8-byte
+            // load, placed as `pairs` finds them in memory, then the same shuffles.
+            unsafe {
+                let q = |l: usize| p.offset(2 * o[l]).cast::<f64>();
+                let two = |l: usize| _mm_loadh_pd(_mm_load_sd(q(l)), q(l + 1));
+                let a = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(two(0)), two(4));
+                let b = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(two(2)), two(6));
+                let (a, b) = (_mm256_castpd_ps(a), _mm256_castpd_ps(b));
+                (
+                    _mm256_shuffle_ps::<0x88>(a, b),
+                    _mm256_shuffle_ps::<0xDD>(a, b),
+                )
+            }
+        }
+        #[inline(always)]
         fn negative(self, a: Self::F) -> Self::M {
             // Masks only feed `blendv`, which reads the sign bit alone.
             a
@@ -839,7 +896,8 @@ unsafe fn eight<T>(v: &[T], e: usize) -> &[T] {
 #[inline(always)]
 fn assert_entries(sell: &Sell) {
     let total = sell.start.last().map_or(0, |&t| t as usize);
-    assert!(sell.k.len() == total && sell.rest.len() == total && sell.near.len() == total);
+    let lower = sell.low.last().map_or(0, |&t| t as usize);
+    assert!(sell.near.len() == total && sell.kr.len() == total - lower && sell.refs.len() == lower);
 }
 
 /// Where the other ends of one slice's springs are stored (see [`Sell`]).
@@ -1056,11 +1114,10 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     // a closure would not inherit the target features, and its lane operations would not
     // inline).
     macro_rules! spring {
-        ($e:expr) => {{
+        ($e:expr, $k:expr) => {{
             let e = $e;
             let (j, rows) = ends.at(l, e);
-            // SAFETY: `e` is an entry of slice `s` (asserted in bounds by the caller).
-            let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
+            let (k, rest) = $k;
             // SAFETY: spring indices are below n, x and d have n entries.
             let z = unsafe {
                 if STEP {
@@ -1085,13 +1142,37 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         }};
     }
     // Force always, energy from the upper entries on (springs to higher vertices only): two
-    // loops, no test per entry.
-    let (entries, upper) = (sell.entries(s), sell.upper_entries(s).start);
-    for e in (entries.start..upper).step_by(LANES) {
-        spring!(e);
+    // loops, no test per entry. The lower entries take their pairs from their references, the
+    // upper ones hold them.
+    let kr = sell.kr.as_ptr().cast::<f32>();
+    let (lower, upper) = (sell.lower_entries(s), sell.upper_entries(s));
+    match sell.refs_of(s) {
+        Refs::Near { refs, base } => {
+            for e in lower.clone().step_by(LANES) {
+                // SAFETY: a reference per lower entry of the slice, each to a pair in bounds
+                // (by construction).
+                let r = unsafe { eight(refs, e - lower.start) };
+                // Volatile reads keep the decode scalar (see `Near::at`).
+                let o = std::array::from_fn(|k| {
+                    // SAFETY: eight references in bounds (sliced above).
+                    base + unsafe { r.as_ptr().add(k).read_volatile() } as isize
+                });
+                spring!(e, unsafe { l.pairs_at(kr, &o) });
+            }
+        }
+        Refs::Far { refs } => {
+            for e in lower.clone().step_by(LANES) {
+                let r = &refs[e - lower.start..e - lower.start + LANES];
+                let o = std::array::from_fn(|k| r[k] as isize);
+                // SAFETY: pair indices in bounds (by construction).
+                spring!(e, unsafe { l.pairs_at(kr, &o) });
+            }
+        }
     }
-    for e in (upper..entries.end).step_by(LANES) {
-        let (j, [zx, zy, zz], len, inv, ok, k, rest) = spring!(e);
+    for e in upper.clone().step_by(LANES) {
+        // SAFETY: the slot's eight pairs are in bounds (checked by the caller).
+        let pairs = unsafe { l.pairs(kr.add(2 * sell.pairs_at(s, e))) };
+        let (j, [zx, zy, zz], len, inv, ok, k, rest) = spring!(e, pairs);
         // Energy in f64 from exact differences, each spring once (from its lower end): the
         // stretch `|e| − rest` with one Newton step on the f32 length.
         let (ex64, ey64, ez64) = (
@@ -1471,8 +1552,9 @@ fn curvature_chunk<S: Lanes>(
             let mut vertex = zero;
         for e in sell.upper_entries(s).step_by(LANES) {
             let (j, rows) = ends.at(l, e);
-            // SAFETY: `e` is an entry of slice `s` (its arrays checked above).
-            let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
+            // SAFETY: `e` is an upper entry of slice `s`: its slot's pairs are in bounds
+            // (the arrays checked above).
+            let (k, rest) = unsafe { l.pairs(sell.kr.as_ptr().cast::<f32>().add(2 * sell.pairs_at(s, e))) };
             // SAFETY: spring indices are below n, x and d have n entries.
             let ([zx, zy, zz], [vx, vy, vz]) = unsafe { l.vec3s_pair(xp, dp, n, &rows, j) };
             let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));

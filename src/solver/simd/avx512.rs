@@ -45,6 +45,16 @@ impl Lanes for Avx512 {
         unsafe { A.gather(base, idx) }
     }
     #[inline(always)]
+    unsafe fn pairs(self, p: *const f32) -> (Self::F, Self::F) {
+        // SAFETY: the caller's contract.
+        unsafe { A.pairs(p) }
+    }
+    #[inline(always)]
+    unsafe fn pairs_at(self, p: *const f32, o: &[isize; 8]) -> (Self::F, Self::F) {
+        // SAFETY: the caller's contract.
+        unsafe { A.pairs_at(p, o) }
+    }
+    #[inline(always)]
     unsafe fn load3(self, p: *const f32) -> [Self::F; 3] {
         // SAFETY: the caller's contract.
         unsafe { A.load3(p) }
