@@ -65,18 +65,35 @@ const NEAR_REF: usize = u16::MAX as usize;
 /// Where the lower entries of one slice find their `(k, rest)` pairs.
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum Refs<'a> {
-    /// Entry `e` names pair `base + refs[e - first]` (a sign-extended 16-bit value).
+    /// Entry `e` names pair `base + refs[r]` (a sign-extended 16-bit value) for
+    /// `r = e - first` with its lane permuted by [`PAIR_LANES`] (the references of one slot
+    /// are stored in the order of its pairs).
     Near {
         /// The slice's references, from its first entry.
         refs: &'a [i16],
         /// Added to each reference.
         base: isize,
     },
-    /// Entry `e` names pair `refs[e - first]`.
+    /// Entry `e` names pair `refs[r]`, `r` as for `Near`.
     Far {
         /// The slice's pair indices, from its first entry.
         refs: &'a [u32],
     },
+}
+
+/// The springs of one slice, as the kernels walk them.
+#[derive(Debug, Clone)]
+pub(crate) struct Parts<'a> {
+    /// The lower entries (springs to lower vertices and padding), which name their pairs by
+    /// `refs`.
+    pub lower: std::ops::Range<usize>,
+    /// The upper entries, each holding its pair.
+    pub upper: std::ops::Range<usize>,
+    /// The index in [`Sell::kr`] of the upper entries' first pair (the pairs of entry
+    /// `upper.start + 8 m` start at `pairs + 8 m`).
+    pub pairs: usize,
+    /// The lower entries' references.
+    pub refs: Refs<'a>,
 }
 
 /// The half-springs of every vertex, in slices of [`LANES`] vertices.
@@ -235,10 +252,13 @@ impl Sell {
         };
         let mut pairs = Vec::new();
         for s in 0..slices {
+            // The references of one slot follow its pairs' lane order: reference `r` is
+            // that of entry `r - r % LANES + PAIR_LANES[r % LANES]` (relative to the first).
             let lower = sell.start[s] as usize..(sell.upper[s] & !FLAGS) as usize;
             let end = sell.start[s + 1] as usize - sell.low[s] as usize;
             pairs.clear();
-            for e in lower.clone() {
+            for r in 0..lower.len() {
+                let e = lower.start + r - r % LANES + PAIR_LANES[r % LANES];
                 let Some(sp) = springs.get(spring[e] as usize) else {
                     // Padding: any pair will do (its force is masked out); the slice's last.
                     pairs.push(end - 1);
@@ -261,7 +281,8 @@ impl Sell {
             }
             let first = sell.low[s] as usize - lower.len();
             if pairs.iter().all(|&p| end - p <= NEAR_REF) {
-                for (r, &p) in sell.refs[first..first + lower.len()].iter_mut().zip(&pairs) {
+                let refs = &mut sell.refs[first..first + lower.len()];
+                for (r, &p) in refs.iter_mut().zip(&pairs) {
                     *r = (32_768 - (end - p) as i32) as i16;
                 }
             } else {
@@ -280,11 +301,37 @@ impl Sell {
         q - q % LANES + PAIR_LANES[q % LANES]
     }
 
-    /// The index in [`kr`](Self::kr) of the first pair of upper entry `e` (a slot's first) of
-    /// slice `s`: the slot's eight pairs follow, in the lane order [`PAIR_LANES`].
+    /// The upper entries of slice `s` and the index in [`kr`](Self::kr) of their first pair
+    /// (the eight pairs of entry `upper.start + 8 m` start at `pairs + 8 m`, in the lane order
+    /// [`PAIR_LANES`]).
     #[inline(always)]
-    pub fn pairs_at(&self, s: usize, e: usize) -> usize {
-        e - self.low[s] as usize
+    pub fn upper_pairs(&self, s: usize) -> (std::ops::Range<usize>, usize) {
+        let upper = self.upper_entries(s);
+        let pairs = upper.start - self.low[s] as usize;
+        (upper, pairs)
+    }
+
+    /// The [`Parts`] of slice `s`.
+    #[inline(always)]
+    pub fn parts(&self, s: usize) -> Parts<'_> {
+        let (begin, end) = (self.start[s] as usize, self.start[s + 1] as usize);
+        let upper = self.upper[s];
+        let first = (upper & !FLAGS) as usize;
+        let low = self.low[s] as usize;
+        let refs = if upper & FAR_REFS == 0 {
+            Refs::Near {
+                refs: &self.refs[low - (first - begin)..low],
+                base: (end - low) as isize - 32_768,
+            }
+        } else {
+            self.refs_of(s)
+        };
+        Parts {
+            lower: begin..first,
+            upper: first..end,
+            pairs: first - low,
+            refs,
+        }
     }
 
     /// The entries of slice `s`: `start..end`, in steps of [`LANES`].
@@ -373,6 +420,7 @@ impl Sell {
             return self.own_pair(s, e);
         }
         let r = e - self.start[s] as usize;
+        let r = r - r % LANES + PAIR_LANES[r % LANES];
         match self.refs_of(s) {
             Refs::Near { refs, base } => (base + refs[r] as isize) as usize,
             Refs::Far { refs } => refs[r] as usize,
@@ -521,7 +569,7 @@ mod tests {
             // The upper slot is the last one; lane `l`'s pair at position PAIR_LANES[l].
             let e = sell.upper_entries(s).start;
             assert_eq!(sell.upper_entries(s).len(), LANES);
-            let p = sell.pairs_at(s, e);
+            let p = sell.upper_pairs(s).1;
             for l in 0..LANES {
                 assert_eq!(sell.kr[p + PAIR_LANES[l]][0], (s * LANES + l) as f32);
             }

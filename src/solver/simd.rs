@@ -119,11 +119,23 @@ pub(crate) trait Lanes: Copy {
     /// # Safety
     /// 16 floats from `p` must be readable.
     unsafe fn pairs(self, p: *const f32) -> (Self::F, Self::F);
-    /// The pairs `p[2 o[l]]`, `p[2 o[l] + 1]` per lane `l` as the lanes `(k, rest)`.
+    /// The pairs `p[2 i]`, `p[2 i + 1]` for the pair indices `i` in `idx`, which lists them
+    /// in the lane order [`PAIR_LANES`] (lane `l`'s index in position `PAIR_LANES[l]`), as the
+    /// lanes `(k, rest)`.
     ///
     /// # Safety
-    /// The two floats at every `p + 2 o[l]` must be readable.
-    unsafe fn pairs_at(self, p: *const f32, o: &[isize; 8]) -> (Self::F, Self::F);
+    /// The two floats at every `p + 2 i` must be readable.
+    unsafe fn pairs_at(self, p: *const f32, idx: Self::I) -> (Self::F, Self::F);
+    /// [`pairs_at`](Self::pairs_at) for the pair indices `base + refs[m]` (in the lane order
+    /// [`PAIR_LANES`]).
+    ///
+    /// # Safety
+    /// Eight references readable; the two floats at every `p + 2 (base + refs[m])` readable.
+    #[inline(always)]
+    unsafe fn pairs_near(self, p: *const f32, refs: &[i16], base: isize) -> (Self::F, Self::F) {
+        // SAFETY: the caller's contract.
+        unsafe { self.pairs_at(p, self.load_near(refs, base as u32)) }
+    }
     /// Lanes whose sign bit is set (`-0.0` included).
     fn negative(self, a: Self::F) -> Self::M;
     /// Eight f64 from an array.
@@ -245,9 +257,9 @@ impl Lanes for Scalar {
         )
     }
     #[inline(always)]
-    unsafe fn pairs_at(self, p: *const f32, o: &[isize; 8]) -> (Self::F, Self::F) {
+    unsafe fn pairs_at(self, p: *const f32, idx: Self::I) -> (Self::F, Self::F) {
         // SAFETY: the caller guarantees every pair is readable.
-        let at = |l: usize, c: usize| unsafe { *p.offset(2 * o[l]).add(c) };
+        let at = |l: usize, c: usize| unsafe { *p.add(2 * idx[PAIR_LANES[l]] as usize + c) };
         (
             std::array::from_fn(|l| at(l, 0)),
             std::array::from_fn(|l| at(l, 1)),
@@ -650,14 +662,13 @@ mod avx2 {
             }
         }
         #[inline(always)]
-        unsafe fn pairs_at(self, p: *const f32, o: &[isize; 8]) -> (Self::F, Self::F) {
-            // SAFETY: the caller guarantees every pair is readable. Each pair is one 8-byte
-            // load, placed as `pairs` finds them in memory, then the same shuffles.
+        unsafe fn pairs_at(self, p: *const f32, idx: Self::I) -> (Self::F, Self::F) {
+            // SAFETY: the caller guarantees every pair is readable. Each pair gathered as one
+            // double, in the order `pairs` finds them in memory, then the same shuffles.
             unsafe {
-                let q = |l: usize| p.offset(2 * o[l]).cast::<f64>();
-                let two = |l: usize| _mm_loadh_pd(_mm_load_sd(q(l)), q(l + 1));
-                let a = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(two(0)), two(4));
-                let b = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(two(2)), two(6));
+                let p = p.cast::<f64>();
+                let a = _mm256_i32gather_pd::<8>(p, _mm256_castsi256_si128(idx));
+                let b = _mm256_i32gather_pd::<8>(p, _mm256_extracti128_si256::<1>(idx));
                 let (a, b) = (_mm256_castpd_ps(a), _mm256_castpd_ps(b));
                 (
                     _mm256_shuffle_ps::<0x88>(a, b),
@@ -1145,33 +1156,27 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     // loops, no test per entry. The lower entries take their pairs from their references, the
     // upper ones hold them.
     let kr = sell.kr.as_ptr().cast::<f32>();
-    let (lower, upper) = (sell.lower_entries(s), sell.upper_entries(s));
-    match sell.refs_of(s) {
+    let parts = sell.parts(s);
+    let (lower, upper) = (parts.lower, parts.upper);
+    match parts.refs {
         Refs::Near { refs, base } => {
             for e in lower.clone().step_by(LANES) {
-                // SAFETY: a reference per lower entry of the slice, each to a pair in bounds
-                // (by construction).
-                let r = unsafe { eight(refs, e - lower.start) };
-                // Volatile reads keep the decode scalar (see `Near::at`).
-                let o = std::array::from_fn(|k| {
-                    // SAFETY: eight references in bounds (sliced above).
-                    base + unsafe { r.as_ptr().add(k).read_volatile() } as isize
-                });
-                spring!(e, unsafe { l.pairs_at(kr, &o) });
+                // SAFETY: a reference per lower entry of the slice, each naming a pair in
+                // bounds (by construction).
+                spring!(e, unsafe { l.pairs_near(kr, eight(refs, e - lower.start), base) });
             }
         }
         Refs::Far { refs } => {
             for e in lower.clone().step_by(LANES) {
-                let r = &refs[e - lower.start..e - lower.start + LANES];
-                let o = std::array::from_fn(|k| r[k] as isize);
-                // SAFETY: pair indices in bounds (by construction).
-                spring!(e, unsafe { l.pairs_at(kr, &o) });
+                let idx = l.load_i(&refs[e - lower.start..e - lower.start + LANES]);
+                // SAFETY: every reference names a pair in bounds (by construction).
+                spring!(e, unsafe { l.pairs_at(kr, idx) });
             }
         }
     }
     for e in upper.clone().step_by(LANES) {
         // SAFETY: the slot's eight pairs are in bounds (checked by the caller).
-        let pairs = unsafe { l.pairs(kr.add(2 * sell.pairs_at(s, e))) };
+        let pairs = unsafe { l.pairs(kr.add(2 * (parts.pairs + e - upper.start))) };
         let (j, [zx, zy, zz], len, inv, ok, k, rest) = spring!(e, pairs);
         // Energy in f64 from exact differences, each spring once (from its lower end): the
         // stretch `|e| − rest` with one Newton step on the f32 length.
@@ -1550,11 +1555,13 @@ fn curvature_chunk<S: Lanes>(
         let [dx, dy, dz] = unsafe { own_vec3(l, sell, s, own, d) };
         let vertex = with_ends!(sell, s, ends => {
             let mut vertex = zero;
-        for e in sell.upper_entries(s).step_by(LANES) {
+        let (upper, pairs) = sell.upper_pairs(s);
+        let kr = sell.kr.as_ptr().cast::<f32>();
+        for e in upper.clone().step_by(LANES) {
             let (j, rows) = ends.at(l, e);
             // SAFETY: `e` is an upper entry of slice `s`: its slot's pairs are in bounds
             // (the arrays checked above).
-            let (k, rest) = unsafe { l.pairs(sell.kr.as_ptr().cast::<f32>().add(2 * sell.pairs_at(s, e))) };
+            let (k, rest) = unsafe { l.pairs(kr.add(2 * (pairs + e - upper.start))) };
             // SAFETY: spring indices are below n, x and d have n entries.
             let ([zx, zy, zz], [vx, vy, vz]) = unsafe { l.vec3s_pair(xp, dp, n, &rows, j) };
             let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));
@@ -1715,6 +1722,15 @@ mod tests {
             .map(|&[a, b]| rest_pos[a as usize].distance(rest_pos[b as usize]) * 0.97)
             .collect();
         let system = SpringSystem::new(&rest_pos, &edges, &k, &rest).unwrap();
+        assert_springs_are(&system, &edges, &k, &rest);
+        // Uneven degrees: padding, and slots where some lanes' springs go down and others' up.
+        let sell = &system.sell;
+        let degree = |i: usize| sell.springs_of(i).count();
+        assert!((0..sell.slices()).any(|s| {
+            let d: Vec<usize> = (s * LANES..((s + 1) * LANES).min(n)).map(degree).collect();
+            d.iter().min() != d.iter().max()
+        }));
+        assert!((0..sell.slices()).any(|s| !sell.lower_entries(s).is_empty()));
         let x: Vec<Vec3> = rest_pos
             .iter()
             .enumerate()
@@ -1737,6 +1753,35 @@ mod tests {
             .collect();
         let pinned = (0..n).map(|i| i % 31 == 4).collect();
         (system, x, anchors, ext, pinned)
+    }
+
+    /// Checks the system's springs (stored once per spring, in slices) read back as the
+    /// half-springs of `edges` at both ends, in internal order, sorted by their other end.
+    fn assert_springs_are(system: &SpringSystem, edges: &[[u32; 2]], k: &[f32], rest: &[f32]) {
+        let order = system.order();
+        let mut rank = vec![0u32; order.len()];
+        for (i, &o) in order.iter().enumerate() {
+            rank[o as usize] = i as u32;
+        }
+        let mut lists = vec![Vec::new(); order.len()];
+        for (e, &[a, b]) in edges.iter().enumerate() {
+            let (a, b) = (rank[a as usize], rank[b as usize]);
+            for (from, to) in [(a, b), (b, a)] {
+                lists[from as usize].push(crate::solver::Spring {
+                    other: to,
+                    k: k[e],
+                    rest: rest[e],
+                });
+            }
+        }
+        let mut offsets = vec![0u32];
+        let mut springs = Vec::new();
+        for mut list in lists {
+            list.sort_by_key(|s| s.other);
+            springs.extend(list);
+            offsets.push(springs.len() as u32);
+        }
+        assert_eq!(system.csr(), (offsets, springs));
     }
 
     /// The plain per-vertex loop over CSR springs the kernels must reproduce bit for bit.
@@ -1858,18 +1903,26 @@ mod tests {
         edges.extend((0..40).map(|i| [i * 7, n - 1 - i * 997]));
         // Springs 20 000 vertices long: 16-bit offsets, but too long to store times three.
         edges.extend((0..30).map(|i| [1000 + i * 13, 21_000 + i * 13]));
+        // Springs 30 000 vertices long: 16-bit offsets, but their pairs more than 65 535 pairs
+        // back from their upper end (two or three per vertex): full pair indices.
+        edges.extend((0..30).map(|i| [40_000 + i * 17, 70_000 + i * 17]));
         let k: Vec<f32> = (0..edges.len()).map(|e| 10.0 + (e % 7) as f32).collect();
         let rest: Vec<f32> = edges
             .iter()
             .map(|&[a, b]| pos[a as usize].distance(pos[b as usize]) * 0.9)
             .collect();
         let system = SpringSystem::new(&pos, &edges, &k, &rest).unwrap();
+        assert_springs_are(&system, &edges, &k, &rest);
         let sell = &system.sell;
         assert!(!sell.wide.is_empty() && sell.wide.len() < sell.slices() / 10);
-        // All three storages of the other ends occur.
+        // All three storages of the other ends occur, and both of the references to the pairs
+        // (with near and with far other ends).
         let near = |s: &usize| sell.far_of(*s).is_none();
         assert!((0..sell.slices()).any(|s| near(&s) && !sell.tripled(s)));
         assert!((0..sell.slices()).any(|s| near(&s) && sell.tripled(s)));
+        assert!((0..sell.slices()).any(|s| near(&s) && sell.has_far_refs(s)));
+        assert!((0..sell.slices()).any(|s| !near(&s) && sell.has_far_refs(s)));
+        assert!((0..sell.slices()).any(|s| near(&s) && !sell.has_far_refs(s)));
         let x: Vec<Vec3> = (0..n as usize)
             .map(|i| system.to_internal(&pos)[i] + Vec3::splat((i as f32).sin() * 1e-4))
             .collect();
