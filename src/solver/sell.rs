@@ -1,5 +1,4 @@
-//! Sliced ELLPACK storage of the springs: eight vertices per slice, one slot per half-spring,
-//! the stiffness and rest length of each spring stored at its lower end only.
+//! Sliced ELLPACK storage of the springs: eight vertices per slice, `(k, rest)` once per spring.
 //!
 //! Each slice of [`LANES`] consecutive (internal) vertices is padded to the largest degree among
 //! them and stored slot-major: entry `slot * LANES + lane` of the slice is the `slot`-th spring
@@ -27,9 +26,10 @@
 //! zeros); the lower slots keep none: each of their entries names the pair of the same spring
 //! at its other end, a lower vertex whose upper slots hold it (an earlier slice, or this one),
 //! as a 16-bit distance back from the end of this slice's pairs, or as a full 32-bit pair index
-//! in the few slices with a partner farther back ([`Sell::far_refs`]). In a triangle mesh
-//! (degree 6, half of the springs to higher vertices) that is 2 + 8 bytes per upper entry and
-//! 2 + 2 per lower one: about 45 bytes of springs per vertex instead of 60.
+//! in the few slices with a partner farther back ([`Sell::far_refs`]). An upper entry takes
+//! 2 + 8 bytes, a lower one 2 + 2 (instead of 2 + 8 + 8 for every half-spring before): on the
+//! bench's skin tubes (degree 6; per vertex about 3.7 upper and 2.3 lower slots) 47-50 bytes of
+//! springs per vertex with the per-slice offsets, instead of 61-63.
 //!
 //! The pairs of one upper slot (eight lanes, 64 bytes) are stored in the lane order
 //! [`PAIR_LANES`], so that two 32-byte loads and two in-lane shuffles give the stiffness and the
@@ -117,8 +117,9 @@ pub(crate) struct Sell {
     /// Stiffness (N/m) and rest length (m) of the upper entries, eight pairs per slot in the
     /// lane order [`PAIR_LANES`] (zeros for padding).
     pub kr: Vec<[f32; 2]>,
-    /// Per lower entry: the pair of its spring, `32 768 - (end - pair)` for `end` the end of the
-    /// slice's pairs (unused in the slices of [`far_refs`](Self::far_refs)).
+    /// Per lower entry (the eight of a slot in the lane order [`PAIR_LANES`]): the pair of its
+    /// spring, as `32 768 - (end - pair)` for `end` the end of the slice's pairs (unused in the
+    /// slices of [`far_refs`](Self::far_refs); padding names any pair, here the slice's last).
     pub refs: Vec<i16>,
     /// `(slice, offset)` of each slice whose lower entries' pairs are in `far_refs`: its lower
     /// entries name pairs `far_refs[offset..offset + lower entries]`.
@@ -154,7 +155,10 @@ impl Sell {
             start.push(start[s] + width * LANES as u32);
         }
         let total = start[slices] as usize;
-        assert!(total < FAR_REFS as usize, "too many springs for 29-bit entry indices");
+        assert!(
+            total < FAR_REFS as usize,
+            "too many springs for 29-bit entry indices"
+        );
         let mut near = vec![0i16; total];
         // The CSR spring of each entry (`u32::MAX` for padding).
         let mut spring = vec![u32::MAX; total];
@@ -567,11 +571,10 @@ mod tests {
         check_pairs(&sell, &offsets, &springs);
         for s in 0..sell.slices() - 1 {
             // The upper slot is the last one; lane `l`'s pair at position PAIR_LANES[l].
-            let e = sell.upper_entries(s).start;
-            assert_eq!(sell.upper_entries(s).len(), LANES);
-            let p = sell.upper_pairs(s).1;
-            for l in 0..LANES {
-                assert_eq!(sell.kr[p + PAIR_LANES[l]][0], (s * LANES + l) as f32);
+            let (upper, p) = sell.upper_pairs(s);
+            assert_eq!(upper.len(), LANES);
+            for (l, position) in PAIR_LANES.iter().enumerate() {
+                assert_eq!(sell.kr[p + position][0], (s * LANES + l) as f32);
             }
         }
     }

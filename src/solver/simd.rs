@@ -1163,7 +1163,9 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
             for e in lower.clone().step_by(LANES) {
                 // SAFETY: a reference per lower entry of the slice, each naming a pair in
                 // bounds (by construction).
-                spring!(e, unsafe { l.pairs_near(kr, eight(refs, e - lower.start), base) });
+                spring!(e, unsafe {
+                    l.pairs_near(kr, eight(refs, e - lower.start), base)
+                });
             }
         }
         Refs::Far { refs } => {
