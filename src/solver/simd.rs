@@ -18,7 +18,7 @@ use glam::Vec3;
 
 use super::VertexAnchor;
 use super::kernels::Sums;
-use super::sell::{LANES, Sell};
+use super::sell::{LANES, PAIR_LANES, Refs, Sell};
 
 /// Eight lanes of f32 (and f64) arithmetic.
 pub(crate) trait Lanes: Copy {
@@ -113,6 +113,29 @@ pub(crate) trait Lanes: Copy {
     /// # Safety
     /// 24 floats from `p` must be writable.
     unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]);
+    /// The eight `(k, rest)` pairs of one upper slot at `p` (16 floats, the pairs in the lane
+    /// order [`PAIR_LANES`]) as the lanes `(k, rest)`.
+    ///
+    /// # Safety
+    /// 16 floats from `p` must be readable.
+    unsafe fn pairs(self, p: *const f32) -> (Self::F, Self::F);
+    /// The pairs `p[2 i]`, `p[2 i + 1]` for the pair indices `i` in `idx`, which lists them
+    /// in the lane order [`PAIR_LANES`] (lane `l`'s index in position `PAIR_LANES[l]`), as the
+    /// lanes `(k, rest)`.
+    ///
+    /// # Safety
+    /// The two floats at every `p + 2 i` must be readable.
+    unsafe fn pairs_at(self, p: *const f32, idx: Self::I) -> (Self::F, Self::F);
+    /// [`pairs_at`](Self::pairs_at) for the pair indices `base + refs[m]` (in the lane order
+    /// [`PAIR_LANES`]).
+    ///
+    /// # Safety
+    /// Eight references readable; the two floats at every `p + 2 (base + refs[m])` readable.
+    #[inline(always)]
+    unsafe fn pairs_near(self, p: *const f32, refs: &[i16], base: isize) -> (Self::F, Self::F) {
+        // SAFETY: the caller's contract.
+        unsafe { self.pairs_at(p, self.load_near(refs, base as u32)) }
+    }
     /// Lanes whose sign bit is set (`-0.0` included).
     fn negative(self, a: Self::F) -> Self::M;
     /// Eight f64 from an array.
@@ -223,6 +246,24 @@ impl Lanes for Scalar {
                 unsafe { *p.add(3 * l + c) = v[l] };
             }
         }
+    }
+    #[inline(always)]
+    unsafe fn pairs(self, p: *const f32) -> (Self::F, Self::F) {
+        // SAFETY: the caller guarantees 16 readable floats.
+        let at = |l: usize, c: usize| unsafe { *p.add(2 * PAIR_LANES[l] + c) };
+        (
+            std::array::from_fn(|l| at(l, 0)),
+            std::array::from_fn(|l| at(l, 1)),
+        )
+    }
+    #[inline(always)]
+    unsafe fn pairs_at(self, p: *const f32, idx: Self::I) -> (Self::F, Self::F) {
+        // SAFETY: the caller guarantees every pair is readable.
+        let at = |l: usize, c: usize| unsafe { *p.add(2 * idx[PAIR_LANES[l]] as usize + c) };
+        (
+            std::array::from_fn(|l| at(l, 0)),
+            std::array::from_fn(|l| at(l, 1)),
+        )
     }
     #[inline(always)]
     fn negative(self, a: Self::F) -> Self::M {
@@ -609,6 +650,33 @@ mod avx2 {
             }
         }
         #[inline(always)]
+        unsafe fn pairs(self, p: *const f32) -> (Self::F, Self::F) {
+            // SAFETY: the caller guarantees 16 readable floats. The pairs of lanes 0, 1, 4, 5
+            // then 2, 3, 6, 7: the even floats of each 128-bit half are k in lane order.
+            unsafe {
+                let (a, b) = (_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(8)));
+                (
+                    _mm256_shuffle_ps::<0x88>(a, b),
+                    _mm256_shuffle_ps::<0xDD>(a, b),
+                )
+            }
+        }
+        #[inline(always)]
+        unsafe fn pairs_at(self, p: *const f32, idx: Self::I) -> (Self::F, Self::F) {
+            // SAFETY: the caller guarantees every pair is readable. Each pair gathered as one
+            // double, in the order `pairs` finds them in memory, then the same shuffles.
+            unsafe {
+                let p = p.cast::<f64>();
+                let a = _mm256_i32gather_pd::<8>(p, _mm256_castsi256_si128(idx));
+                let b = _mm256_i32gather_pd::<8>(p, _mm256_extracti128_si256::<1>(idx));
+                let (a, b) = (_mm256_castpd_ps(a), _mm256_castpd_ps(b));
+                (
+                    _mm256_shuffle_ps::<0x88>(a, b),
+                    _mm256_shuffle_ps::<0xDD>(a, b),
+                )
+            }
+        }
+        #[inline(always)]
         fn negative(self, a: Self::F) -> Self::M {
             // Masks only feed `blendv`, which reads the sign bit alone.
             a
@@ -839,7 +907,8 @@ unsafe fn eight<T>(v: &[T], e: usize) -> &[T] {
 #[inline(always)]
 fn assert_entries(sell: &Sell) {
     let total = sell.start.last().map_or(0, |&t| t as usize);
-    assert!(sell.k.len() == total && sell.rest.len() == total && sell.near.len() == total);
+    let lower = sell.low.last().map_or(0, |&t| t as usize);
+    assert!(sell.near.len() == total && sell.kr.len() == total - lower && sell.refs.len() == lower);
 }
 
 /// Where the other ends of one slice's springs are stored (see [`Sell`]).
@@ -1056,11 +1125,10 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     // a closure would not inherit the target features, and its lane operations would not
     // inline).
     macro_rules! spring {
-        ($e:expr) => {{
+        ($e:expr, $k:expr) => {{
             let e = $e;
             let (j, rows) = ends.at(l, e);
-            // SAFETY: `e` is an entry of slice `s` (asserted in bounds by the caller).
-            let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
+            let (k, rest) = $k;
             // SAFETY: spring indices are below n, x and d have n entries.
             let z = unsafe {
                 if STEP {
@@ -1085,13 +1153,33 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         }};
     }
     // Force always, energy from the upper entries on (springs to higher vertices only): two
-    // loops, no test per entry.
-    let (entries, upper) = (sell.entries(s), sell.upper_entries(s).start);
-    for e in (entries.start..upper).step_by(LANES) {
-        spring!(e);
+    // loops, no test per entry. The lower entries take their pairs from their references, the
+    // upper ones hold them.
+    let kr = sell.kr.as_ptr().cast::<f32>();
+    let parts = sell.parts(s);
+    let (lower, upper) = (parts.lower, parts.upper);
+    match parts.refs {
+        Refs::Near { refs, base } => {
+            for e in lower.clone().step_by(LANES) {
+                // SAFETY: a reference per lower entry of the slice, each naming a pair in
+                // bounds (by construction).
+                spring!(e, unsafe {
+                    l.pairs_near(kr, eight(refs, e - lower.start), base)
+                });
+            }
+        }
+        Refs::Far { refs } => {
+            for e in lower.clone().step_by(LANES) {
+                let idx = l.load_i(&refs[e - lower.start..e - lower.start + LANES]);
+                // SAFETY: every reference names a pair in bounds (by construction).
+                spring!(e, unsafe { l.pairs_at(kr, idx) });
+            }
+        }
     }
-    for e in (upper..entries.end).step_by(LANES) {
-        let (j, [zx, zy, zz], len, inv, ok, k, rest) = spring!(e);
+    for e in upper.clone().step_by(LANES) {
+        // SAFETY: the slot's eight pairs are in bounds (checked by the caller).
+        let pairs = unsafe { l.pairs(kr.add(2 * (parts.pairs + e - upper.start))) };
+        let (j, [zx, zy, zz], len, inv, ok, k, rest) = spring!(e, pairs);
         // Energy in f64 from exact differences, each spring once (from its lower end): the
         // stretch `|e| − rest` with one Newton step on the f32 length.
         let (ex64, ey64, ez64) = (
@@ -1469,10 +1557,13 @@ fn curvature_chunk<S: Lanes>(
         let [dx, dy, dz] = unsafe { own_vec3(l, sell, s, own, d) };
         let vertex = with_ends!(sell, s, ends => {
             let mut vertex = zero;
-        for e in sell.upper_entries(s).step_by(LANES) {
+        let (upper, pairs) = sell.upper_pairs(s);
+        let kr = sell.kr.as_ptr().cast::<f32>();
+        for e in upper.clone().step_by(LANES) {
             let (j, rows) = ends.at(l, e);
-            // SAFETY: `e` is an entry of slice `s` (its arrays checked above).
-            let (k, rest) = unsafe { (l.load(eight(&sell.k, e)), l.load(eight(&sell.rest, e))) };
+            // SAFETY: `e` is an upper entry of slice `s`: its slot's pairs are in bounds
+            // (the arrays checked above).
+            let (k, rest) = unsafe { l.pairs(kr.add(2 * (pairs + e - upper.start))) };
             // SAFETY: spring indices are below n, x and d have n entries.
             let ([zx, zy, zz], [vx, vy, vz]) = unsafe { l.vec3s_pair(xp, dp, n, &rows, j) };
             let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));
@@ -1633,6 +1724,15 @@ mod tests {
             .map(|&[a, b]| rest_pos[a as usize].distance(rest_pos[b as usize]) * 0.97)
             .collect();
         let system = SpringSystem::new(&rest_pos, &edges, &k, &rest).unwrap();
+        assert_springs_are(&system, &edges, &k, &rest);
+        // Uneven degrees: padding, and slots where some lanes' springs go down and others' up.
+        let sell = &system.sell;
+        let degree = |i: usize| sell.springs_of(i).count();
+        assert!((0..sell.slices()).any(|s| {
+            let d: Vec<usize> = (s * LANES..((s + 1) * LANES).min(n)).map(degree).collect();
+            d.iter().min() != d.iter().max()
+        }));
+        assert!((0..sell.slices()).any(|s| !sell.lower_entries(s).is_empty()));
         let x: Vec<Vec3> = rest_pos
             .iter()
             .enumerate()
@@ -1655,6 +1755,35 @@ mod tests {
             .collect();
         let pinned = (0..n).map(|i| i % 31 == 4).collect();
         (system, x, anchors, ext, pinned)
+    }
+
+    /// Checks the system's springs (stored once per spring, in slices) read back as the
+    /// half-springs of `edges` at both ends, in internal order, sorted by their other end.
+    fn assert_springs_are(system: &SpringSystem, edges: &[[u32; 2]], k: &[f32], rest: &[f32]) {
+        let order = system.order();
+        let mut rank = vec![0u32; order.len()];
+        for (i, &o) in order.iter().enumerate() {
+            rank[o as usize] = i as u32;
+        }
+        let mut lists = vec![Vec::new(); order.len()];
+        for (e, &[a, b]) in edges.iter().enumerate() {
+            let (a, b) = (rank[a as usize], rank[b as usize]);
+            for (from, to) in [(a, b), (b, a)] {
+                lists[from as usize].push(crate::solver::Spring {
+                    other: to,
+                    k: k[e],
+                    rest: rest[e],
+                });
+            }
+        }
+        let mut offsets = vec![0u32];
+        let mut springs = Vec::new();
+        for mut list in lists {
+            list.sort_by_key(|s| s.other);
+            springs.extend(list);
+            offsets.push(springs.len() as u32);
+        }
+        assert_eq!(system.csr(), (offsets, springs));
     }
 
     /// The plain per-vertex loop over CSR springs the kernels must reproduce bit for bit.
@@ -1776,18 +1905,26 @@ mod tests {
         edges.extend((0..40).map(|i| [i * 7, n - 1 - i * 997]));
         // Springs 20 000 vertices long: 16-bit offsets, but too long to store times three.
         edges.extend((0..30).map(|i| [1000 + i * 13, 21_000 + i * 13]));
+        // Springs 30 000 vertices long: 16-bit offsets, but their pairs more than 65 535 pairs
+        // back from their upper end (two or three per vertex): full pair indices.
+        edges.extend((0..30).map(|i| [40_000 + i * 17, 70_000 + i * 17]));
         let k: Vec<f32> = (0..edges.len()).map(|e| 10.0 + (e % 7) as f32).collect();
         let rest: Vec<f32> = edges
             .iter()
             .map(|&[a, b]| pos[a as usize].distance(pos[b as usize]) * 0.9)
             .collect();
         let system = SpringSystem::new(&pos, &edges, &k, &rest).unwrap();
+        assert_springs_are(&system, &edges, &k, &rest);
         let sell = &system.sell;
         assert!(!sell.wide.is_empty() && sell.wide.len() < sell.slices() / 10);
-        // All three storages of the other ends occur.
+        // All three storages of the other ends occur, and both of the references to the pairs
+        // (with near and with far other ends).
         let near = |s: &usize| sell.far_of(*s).is_none();
         assert!((0..sell.slices()).any(|s| near(&s) && !sell.tripled(s)));
         assert!((0..sell.slices()).any(|s| near(&s) && sell.tripled(s)));
+        assert!((0..sell.slices()).any(|s| near(&s) && sell.has_far_refs(s)));
+        assert!((0..sell.slices()).any(|s| !near(&s) && sell.has_far_refs(s)));
+        assert!((0..sell.slices()).any(|s| near(&s) && !sell.has_far_refs(s)));
         let x: Vec<Vec3> = (0..n as usize)
             .map(|i| system.to_internal(&pos)[i] + Vec3::splat((i as f32).sin() * 1e-4))
             .collect();

@@ -45,6 +45,45 @@ impl Lanes for Avx512 {
         unsafe { A.gather(base, idx) }
     }
     #[inline(always)]
+    unsafe fn pairs(self, p: *const f32) -> (Self::F, Self::F) {
+        // SAFETY: the caller's contract.
+        unsafe { A.pairs(p) }
+    }
+    #[inline(always)]
+    unsafe fn pairs_at(self, p: *const f32, idx: Self::I) -> (Self::F, Self::F) {
+        // SAFETY: the caller guarantees every pair is readable. One gather of eight doubles
+        // (the pairs, in memory order), then the shuffles of `pairs`.
+        unsafe {
+            let v = _mm512_castpd_ps(_mm512_i32gather_pd::<8>(idx, p.cast()));
+            let (a, b) = (
+                _mm512_castps512_ps256(v),
+                _mm256_castpd_ps(_mm512_extractf64x4_pd::<1>(_mm512_castps_pd(v))),
+            );
+            (
+                _mm256_shuffle_ps::<0x88>(a, b),
+                _mm256_shuffle_ps::<0xDD>(a, b),
+            )
+        }
+    }
+    #[inline(always)]
+    unsafe fn pairs_near(self, p: *const f32, refs: &[i16], base: isize) -> (Self::F, Self::F) {
+        // SAFETY: the caller guarantees the references and pairs are readable. Each pair is
+        // one 8-byte load at its place in the layout `pairs` reads (volatile reads keep the
+        // decode of the references scalar), then the same shuffles.
+        unsafe {
+            let p = p.wrapping_offset(2 * base).cast::<f64>();
+            let q = |m: usize| p.wrapping_offset(refs.as_ptr().add(m).read_volatile() as isize);
+            let two = |m: usize| _mm_loadh_pd(_mm_load_sd(q(m)), q(m + 1));
+            let a = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(two(0)), two(2));
+            let b = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(two(4)), two(6));
+            let (a, b) = (_mm256_castpd_ps(a), _mm256_castpd_ps(b));
+            (
+                _mm256_shuffle_ps::<0x88>(a, b),
+                _mm256_shuffle_ps::<0xDD>(a, b),
+            )
+        }
+    }
+    #[inline(always)]
     unsafe fn load3(self, p: *const f32) -> [Self::F; 3] {
         // SAFETY: the caller's contract.
         unsafe { A.load3(p) }
