@@ -266,6 +266,15 @@ pub enum SolverError {
         /// The caller's vertex index.
         vertex: usize,
     },
+    /// The mesh has more half-springs (with the padding of their slices of eight vertices)
+    /// than the solver's 29-bit entry indices address: split the skin into several systems.
+    #[error("{entries} spring entries exceed the solver's limit of {limit}")]
+    TooManySprings {
+        /// Entries the mesh needs.
+        entries: usize,
+        /// The most a system can hold.
+        limit: usize,
+    },
 }
 
 /// A spring mesh ready to relax: springs in slices of eight vertices (for the SIMD kernels), in a
@@ -366,7 +375,12 @@ impl SpringSystem {
         Ok(Self {
             order,
             rank,
-            sell: Sell::from_csr(&offsets, &springs),
+            sell: Sell::from_csr(&offsets, &springs).map_err(|entries| {
+                SolverError::TooManySprings {
+                    entries,
+                    limit: sell::MAX_ENTRIES,
+                }
+            })?,
             edge_count: edges.len(),
         })
     }

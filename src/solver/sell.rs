@@ -56,6 +56,10 @@ const TRIPLE: u32 = 1 << 30;
 /// [`Sell::far_refs`].
 const FAR_REFS: u32 = 1 << 29;
 
+/// Entries (half-springs with their slices' padding) a layout can index: entry indices carry
+/// flags in their top three bits.
+pub(crate) const MAX_ENTRIES: usize = FAR_REFS as usize;
+
 /// The flag bits of [`Sell::upper`].
 const FLAGS: u32 = WIDE | TRIPLE | FAR_REFS;
 
@@ -139,10 +143,11 @@ impl Sell {
     /// spring is listed at both of its ends with the same stiffness and rest length, as
     /// [`SpringSystem::new`](super::SpringSystem::new) lists them.
     ///
+    /// `Err(entries)` for [`MAX_ENTRIES`] or more entries (about 80 million vertices).
+    ///
     /// # Panics
-    /// If a spring to a lower vertex has no twin at that vertex, or for more than 2²⁹ entries
-    /// (about 80 million vertices).
-    pub fn from_csr(offsets: &[u32], springs: &[Spring]) -> Self {
+    /// If a spring to a lower vertex has no twin at that vertex.
+    pub fn from_csr(offsets: &[u32], springs: &[Spring]) -> Result<Self, usize> {
         let n = offsets.len().saturating_sub(1);
         let slices = n.div_ceil(LANES);
         let mut start = Vec::with_capacity(slices + 1);
@@ -155,10 +160,9 @@ impl Sell {
             start.push(start[s] + width * LANES as u32);
         }
         let total = start[slices] as usize;
-        assert!(
-            total < FAR_REFS as usize,
-            "too many springs for 29-bit entry indices"
-        );
+        if total >= MAX_ENTRIES {
+            return Err(total);
+        }
         let mut near = vec![0i16; total];
         // The CSR spring of each entry (`u32::MAX` for padding).
         let mut spring = vec![u32::MAX; total];
@@ -295,7 +299,7 @@ impl Sell {
                 sell.far_refs.extend(pairs.iter().map(|&p| p as u32));
             }
         }
-        sell
+        Ok(sell)
     }
 
     /// The index in [`kr`](Self::kr) of the pair of upper entry `e` of slice `s`.
@@ -535,7 +539,7 @@ mod tests {
         }
         let n = 11;
         let (offsets, springs) = csr(n, &edges, |e| e as f32 + 0.5, |e| (e % 3) as f32);
-        let sell = Sell::from_csr(&offsets, &springs);
+        let sell = Sell::from_csr(&offsets, &springs).unwrap();
         assert_eq!(sell.slices(), 2);
         let degree = |i: usize| (offsets[i + 1] - offsets[i]) as usize;
         let width = (0..8).map(degree).max().unwrap();
@@ -567,7 +571,7 @@ mod tests {
         let n = 64;
         let edges: Vec<[u32; 2]> = (0..n - 1).map(|i| [i, i + 1]).collect();
         let (offsets, springs) = csr(n as usize, &edges, |e| e as f32, |_| 1.0);
-        let sell = Sell::from_csr(&offsets, &springs);
+        let sell = Sell::from_csr(&offsets, &springs).unwrap();
         check_pairs(&sell, &offsets, &springs);
         for s in 0..sell.slices() - 1 {
             // The upper slot is the last one; lane `l`'s pair at position PAIR_LANES[l].
@@ -587,7 +591,7 @@ mod tests {
         let mut edges: Vec<[u32; 2]> = (0..n - 1).map(|i| [i, i + 1]).collect();
         edges.extend([[0, n - 1], [3, n - 20], [7, 32_000]]);
         let (offsets, springs) = csr(n as usize, &edges, |e| e as f32, |_| 1.0);
-        let sell = Sell::from_csr(&offsets, &springs);
+        let sell = Sell::from_csr(&offsets, &springs).unwrap();
         let wide: Vec<u32> = sell.wide.iter().map(|w| w.0).collect();
         // Slice 0 reaches n - 1 (wide); the slice of n - 20 and the last slice reach 3 and 0
         // (wide); the slice of 32 000 reaches 7 (offset -31 993, still near). Only the last
@@ -621,7 +625,7 @@ mod tests {
             .collect();
         edges.extend((0..20).map(|i| [1000 + i * 101, 31_000 + i * 101]));
         let (offsets, springs) = csr(n as usize, &edges, |e| 1.0 + e as f32, |e| e as f32);
-        let sell = Sell::from_csr(&offsets, &springs);
+        let sell = Sell::from_csr(&offsets, &springs).unwrap();
         let s = (31_000 + 5 * 101) / LANES;
         assert!(sell.has_far_refs(s) && sell.far_of(s).is_none());
         assert!(!sell.has_far_refs(s - 1) && !sell.has_far_refs(10));
