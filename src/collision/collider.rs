@@ -707,9 +707,13 @@ impl MeshShape {
         slack_m: f32,
     ) -> Option<SurfaceProjection> {
         let len = patch.len as usize;
+        // Lean distances of the patch at `p`, each evaluated at most once (NaN: not yet; the
+        // ones never evaluated are farther than the answer).
+        let mut lean = [f32::NAN; PATCH];
         // The last answer first: often it alone is provably the closest.
         let b = patch.best as usize;
-        let mut best = (self.triangle_distance(patch.tris[b], p), b);
+        lean[b] = self.triangle_distance(patch.tris[b], p);
+        let mut best = (lean[b], b);
         let others = if b == 0 {
             patch.dist.get(1).copied().filter(|_| len > 1)
         } else {
@@ -725,9 +729,9 @@ impl MeshShape {
                 if k == b {
                     continue;
                 }
-                let d = self.triangle_distance(patch.tris[k], p);
-                if d < best.0 {
-                    best = (d, k);
+                lean[k] = self.triangle_distance(patch.tris[k], p);
+                if lean[k] < best.0 {
+                    best = (lean[k], k);
                 }
             }
         }
@@ -736,14 +740,15 @@ impl MeshShape {
         if !certified {
             return None;
         }
-        // Lean distances of the patch at `p` (evaluated ones; others are farther than `best`).
-        let mut lean = [f32::INFINITY; PATCH];
+        // The ties within rounding of the answer need their lean distance.
         let reach = best.0 + TIE_ROUNDING * (p.abs().max_element() + best.0);
         for (k, l) in lean.iter_mut().enumerate().take(len) {
-            if k == best.1 {
-                *l = best.0;
-            } else if patch.dist[k] - slack_m <= reach {
-                *l = self.triangle_distance(patch.tris[k], p);
+            if l.is_nan() {
+                *l = if patch.dist[k] - slack_m <= reach {
+                    self.triangle_distance(patch.tris[k], p)
+                } else {
+                    f32::INFINITY
+                };
             }
         }
         let (t, proj, location) =
