@@ -8,6 +8,7 @@ use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{
     Ball, Capsule, CompositeShapeRef, TriMesh as ParryMesh, Triangle, TrianglePointLocation,
 };
+use rayon::prelude::*;
 use std::sync::OnceLock;
 
 use super::CollisionError;
@@ -305,16 +306,34 @@ impl ColliderMesh {
                 expected: m.current.len(),
             });
         }
-        if let Some(i) = vertices.iter().position(|v| !v.is_finite()) {
-            return Err(CollisionError::NonFinite {
-                what: "collider vertex",
-                index: i,
-            });
+        // One read of both arrays checks the input and bounds the motion.
+        let mut moved_sq = 0.0f32;
+        for (i, (v, l)) in vertices.iter().zip(&m.live).enumerate() {
+            if !v.is_finite() {
+                return Err(CollisionError::NonFinite {
+                    what: "collider vertex",
+                    index: i,
+                });
+            }
+            moved_sq = moved_sq.max(l.distance_squared(*v));
         }
-        let moved = max_displacement(&m.live, vertices);
-        m.current.copy_from_slice(vertices);
-        m.live.copy_from_slice(vertices);
-        m.refit();
+        let moved = moved_sq.sqrt();
+        m.whole = OnceLock::new();
+        let (parts, live, current) = (&mut m.parts, &mut m.live, &mut m.current);
+        if parts.is_split() {
+            // The copies run while the parts refit (one more rayon task).
+            rayon::join(
+                || {
+                    live.copy_from_slice(vertices);
+                    current.copy_from_slice(vertices);
+                },
+                || parts.refit(vertices),
+            );
+        } else {
+            live.copy_from_slice(vertices);
+            current.copy_from_slice(vertices);
+            parts.refit(vertices);
+        }
         self.local_aabb = m.parts.local_aabb();
         self.travel_m += moved as f64;
         Ok(())
@@ -399,12 +418,24 @@ impl ColliderMesh {
             && shape
             && m.prev != m.current
         {
-            let mut moved_sq = 0.0f32;
-            for ((l, a), b) in m.live.iter_mut().zip(&m.prev).zip(&m.current) {
-                let target = if s >= 1.0 { *b } else { a.lerp(*b, s) };
-                moved_sq = moved_sq.max(l.distance_squared(target));
-                *l = target;
-            }
+            let lerp = |live: &mut [Vec3], prev: &[Vec3], current: &[Vec3]| {
+                let target = prev.iter().zip(current);
+                move_to(
+                    live,
+                    target.map(|(a, b)| if s >= 1.0 { *b } else { a.lerp(*b, s) }),
+                )
+            };
+            // A maximum: the same in any order of chunks.
+            let moved_sq = if m.parts.is_split() {
+                m.live
+                    .par_chunks_mut(VERTEX_CHUNK)
+                    .zip(m.prev.par_chunks(VERTEX_CHUNK))
+                    .zip(m.current.par_chunks(VERTEX_CHUNK))
+                    .map(|((live, prev), current)| lerp(live, prev, current))
+                    .reduce(|| 0.0, f32::max)
+            } else {
+                lerp(&mut m.live, &m.prev, &m.current)
+            };
             m.refit();
             self.travel_m += moved_sq.sqrt() as f64;
             self.local_aabb = m.parts.local_aabb();
@@ -964,6 +995,20 @@ fn directed_edge(tri: [u32; 3], a: u32, b: u32) -> (usize, bool) {
         }
     }
     (0, false)
+}
+
+/// Vertices per rayon task of a split mesh collider's interpolation.
+const VERTEX_CHUNK: usize = 4096;
+
+/// Moves `live` to `target`, returning the largest squared displacement, m² (a maximum: the
+/// same in any order of chunks).
+fn move_to(live: &mut [Vec3], target: impl Iterator<Item = Vec3>) -> f32 {
+    let mut moved_sq = 0.0f32;
+    for (l, t) in live.iter_mut().zip(target) {
+        moved_sq = moved_sq.max(l.distance_squared(t));
+        *l = t;
+    }
+    moved_sq
 }
 
 fn max_displacement(a: &[Vec3], b: &[Vec3]) -> f32 {

@@ -136,6 +136,11 @@ impl Parts {
         }
     }
 
+    /// Whether the mesh is in more than one part (refitted in parallel).
+    pub(super) fn is_split(&self) -> bool {
+        self.parts.len() > 1
+    }
+
     /// The bounding box of the whole mesh, as parry's root box of the whole BVH.
     pub(super) fn local_aabb(&self) -> Aabb {
         match self.top.first() {
