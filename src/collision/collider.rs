@@ -306,16 +306,17 @@ impl ColliderMesh {
                 expected: m.current.len(),
             });
         }
-        // One read of both arrays checks the input and bounds the motion.
-        let mut moved_sq = 0.0f32;
-        for (i, (v, l)) in vertices.iter().zip(&m.live).enumerate() {
-            if !v.is_finite() {
-                return Err(CollisionError::NonFinite {
-                    what: "collider vertex",
-                    index: i,
-                });
-            }
+        // One branch-free read of both arrays checks the input and bounds the motion.
+        let (mut finite, mut moved_sq) = (true, 0.0f32);
+        for (v, l) in vertices.iter().zip(&m.live) {
+            finite &= v.is_finite();
             moved_sq = moved_sq.max(l.distance_squared(*v));
+        }
+        if !finite {
+            return Err(CollisionError::NonFinite {
+                what: "collider vertex",
+                index: vertices.iter().position(|v| !v.is_finite()).unwrap_or(0),
+            });
         }
         let moved = moved_sq.sqrt();
         m.whole = OnceLock::new();

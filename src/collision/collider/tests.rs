@@ -327,3 +327,40 @@ fn part_rule_and_whole_parry_mesh() {
     let small = ColliderMesh::from_mesh(v, t).unwrap();
     assert_eq!(mesh(&small).parts.len(), 1);
 }
+
+/// Bad input to a split mesh's refresh: a typed error naming the first non-finite vertex, or
+/// the wrong length, and the collider left exactly as it was.
+#[test]
+fn split_refresh_rejects_bad_vertices_unchanged() {
+    let (v, t) = muscle(40, 64);
+    let mut c = ColliderMesh::from_mesh_in_parts(v.clone(), t, 500).unwrap();
+    assert!(mesh(&c).parts.len() > 1);
+    c.set_vertices(&deform(&v, 0.5)).unwrap();
+    let before = (
+        mesh(&c).parts.fingerprint(),
+        c.travel_m(),
+        c.project_local(Vec3::X, NONE),
+    );
+    let mut bad = deform(&v, 0.9);
+    bad[1234].y = f32::NAN;
+    bad[2345].x = f32::INFINITY;
+    match c.set_vertices(&bad) {
+        Err(CollisionError::NonFinite { index, .. }) => assert_eq!(index, 1234),
+        other => panic!("expected NonFinite, got {other:?}"),
+    }
+    match c.set_vertices(&bad[..100]) {
+        Err(CollisionError::Length {
+            given, expected, ..
+        }) => assert_eq!((given, expected), (100, v.len())),
+        other => panic!("expected Length, got {other:?}"),
+    }
+    let after = (
+        mesh(&c).parts.fingerprint(),
+        c.travel_m(),
+        c.project_local(Vec3::X, NONE),
+    );
+    assert_eq!(before.0, after.0);
+    assert_eq!(before.1.to_bits(), after.1.to_bits());
+    assert_eq!(bits(&before.2), bits(&after.2));
+    assert_eq!(mesh(&c).current, deform(&v, 0.5));
+}
