@@ -1,14 +1,4 @@
 //! A deforming mesh's BVH cut into subtrees, refitted in parallel and searched as one tree.
-//!
-//! parry refits a [`TriMesh`](ParryMesh)'s BVH serially and gives no mutable access to it, so
-//! a mesh collider holds its triangles in parts: each part is a parry mesh over the triangles
-//! of one subtree of the BVH parry builds over the whole mesh, below its top levels. parry's
-//! binned build splits a set of leaves the same way wherever that set sits in a tree, so each
-//! part's own BVH is that subtree, node for node (checked when the parts are made; a mesh whose
-//! parts would differ keeps one part). A search visits the top levels as parry's best-first
-//! traversal of the whole tree would, in the same order with the same pruning, and each part's
-//! subtree with parry's own search bounded by the best cost so far: it finds the triangle the
-//! search over the whole mesh finds, ties included.
 
 use glam::Vec3;
 use parry3d::bounding_volume::{Aabb, BoundingVolume};
@@ -16,10 +6,11 @@ use parry3d::partitioning::{Bvh, BvhNode, BvhNodeIndex, TraversalAction};
 use parry3d::shape::TriMesh as ParryMesh;
 use rayon::prelude::*;
 
-/// Largest part worth its own rayon task on its own: a subtree with more triangles is split
-/// (where both of its children have more than one). Chosen by measurement on the bench's
-/// 50k-triangle muscle (see `src/collision/README.md`): a whole mesh up to this size refits
-/// serially, larger ones in parts of at most this size (about `2 n / PART_TRIANGLES` parts).
+/// Largest part: a subtree with more triangles is split (where both of its children have more
+/// than one triangle). A mesh up to this size refits serially in one part; the bench's
+/// 50k-triangle muscle refits in four (10.8k-14.2k triangles), which balance over two rayon
+/// threads: 0.38 ms instead of 0.59 ms with a second core free, the same as in one part (half
+/// the size of parts, 8192, costs more than it balances; twice, two parts, is as fast).
 pub(crate) const PART_TRIANGLES: usize = 16_384;
 
 /// Triangles of one subtree, as a parry mesh over their own vertices.
@@ -73,7 +64,17 @@ struct TopNode {
     aabbs: [Aabb; 2],
 }
 
-/// A mesh's triangles in parts (see the module documentation).
+/// A mesh's triangles in parts, refitted in parallel and searched as one BVH.
+///
+/// parry refits a [`TriMesh`](ParryMesh)'s BVH serially and gives no mutable access to it, so
+/// a mesh collider holds its triangles in parts: each part is a parry mesh over the triangles
+/// of one subtree of the BVH parry builds over the whole mesh, below its top levels. parry's
+/// binned build splits a set of leaves the same way wherever that set sits in a tree, so each
+/// part's own BVH is that subtree, node for node (checked when the parts are made; a mesh whose
+/// parts would differ keeps one part). A search visits the top levels as parry's best-first
+/// traversal of the whole tree would, in the same order with the same pruning, and each part's
+/// subtree with parry's own search bounded by the best cost so far: it finds the triangle the
+/// search over the whole mesh finds, ties included.
 #[derive(Debug, Clone)]
 pub(super) struct Parts {
     parts: Vec<Part>,
