@@ -8,7 +8,6 @@ use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{
     Ball, Capsule, CompositeShapeRef, TriMesh as ParryMesh, Triangle, TrianglePointLocation,
 };
-use rayon::prelude::*;
 use std::sync::OnceLock;
 
 use super::CollisionError;
@@ -292,7 +291,7 @@ impl ColliderMesh {
     }
 
     /// Deforms a mesh collider (rest-frame positions, same count and order as built): a BVH
-    /// refit, no pseudo-normal recomputation. A mesh of more than 16 384 triangles holds its
+    /// refit, no pseudo-normal recomputation. A mesh of more than 16384 triangles holds its
     /// BVH in subtrees refitted in parallel (rayon), which answer every query exactly as one
     /// BVH over the whole mesh.
     pub fn set_vertices(&mut self, vertices: &[Vec3]) -> Result<(), CollisionError> {
@@ -320,21 +319,12 @@ impl ColliderMesh {
         }
         let moved = moved_sq.sqrt();
         m.whole = OnceLock::new();
-        let (parts, live, current) = (&mut m.parts, &mut m.live, &mut m.current);
-        if parts.is_split() {
-            // The copies run while the parts refit (one more rayon task).
-            rayon::join(
-                || {
-                    live.copy_from_slice(vertices);
-                    current.copy_from_slice(vertices);
-                },
-                || parts.refit(vertices),
-            );
-        } else {
+        let (live, current) = (&mut m.live, &mut m.current);
+        // The copies are one more job next to the parts' refits.
+        m.parts.refit_with(&|g| vertices[g], || {
             live.copy_from_slice(vertices);
             current.copy_from_slice(vertices);
-            parts.refit(vertices);
-        }
+        });
         self.local_aabb = m.parts.local_aabb();
         self.travel_m += moved as f64;
         Ok(())
@@ -419,25 +409,21 @@ impl ColliderMesh {
             && shape
             && m.prev != m.current
         {
-            let lerp = |live: &mut [Vec3], prev: &[Vec3], current: &[Vec3]| {
-                let target = prev.iter().zip(current);
-                move_to(
-                    live,
-                    target.map(|(a, b)| if s >= 1.0 { *b } else { a.lerp(*b, s) }),
-                )
+            let (prev, current) = (&m.prev, &m.current);
+            let at = |g: usize| {
+                if s >= 1.0 {
+                    current[g]
+                } else {
+                    prev[g].lerp(current[g], s)
+                }
             };
-            // A maximum: the same in any order of chunks.
-            let moved_sq = if m.parts.is_split() {
-                m.live
-                    .par_chunks_mut(VERTEX_CHUNK)
-                    .zip(m.prev.par_chunks(VERTEX_CHUNK))
-                    .zip(m.current.par_chunks(VERTEX_CHUNK))
-                    .map(|((live, prev), current)| lerp(live, prev, current))
-                    .reduce(|| 0.0, f32::max)
-            } else {
-                lerp(&mut m.live, &m.prev, &m.current)
-            };
-            m.refit();
+            // The parts interpolate their own vertices; one more job moves `live`.
+            let live = &mut m.live;
+            let mut moved_sq = 0.0f32;
+            m.parts.refit_with(&at, || {
+                moved_sq = move_to(live, (0..prev.len()).map(at));
+            });
+            m.whole = OnceLock::new();
             self.travel_m += moved_sq.sqrt() as f64;
             self.local_aabb = m.parts.local_aabb();
         }
@@ -565,12 +551,6 @@ impl ColliderMesh {
 }
 
 impl MeshShape {
-    /// Refits the parts to `live` (and forgets the whole-mesh copy).
-    fn refit(&mut self) {
-        self.whole = OnceLock::new();
-        self.parts.refit(&self.live);
-    }
-
     /// The corners of triangle `t` now.
     #[inline]
     fn corners(&self, t: u32) -> [Vec3; 3] {
@@ -997,9 +977,6 @@ fn directed_edge(tri: [u32; 3], a: u32, b: u32) -> (usize, bool) {
     }
     (0, false)
 }
-
-/// Vertices per rayon task of a split mesh collider's interpolation.
-const VERTEX_CHUNK: usize = 4096;
 
 /// Moves `live` to `target`, returning the largest squared displacement, m² (a maximum: the
 /// same in any order of chunks).

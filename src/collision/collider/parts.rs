@@ -4,13 +4,14 @@ use glam::Vec3;
 use parry3d::bounding_volume::{Aabb, BoundingVolume};
 use parry3d::partitioning::{Bvh, BvhNode, BvhNodeIndex, TraversalAction};
 use parry3d::shape::TriMesh as ParryMesh;
-use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, PoisonError};
 
 /// Largest part: a subtree with more triangles is split (where both of its children have more
 /// than one triangle). A mesh up to this size refits serially in one part; the bench's
-/// 50k-triangle muscle refits in four (10.8k-14.2k triangles), which balance over two rayon
-/// threads: 0.38 ms instead of 0.59 ms with a second core free, the same as in one part (half
-/// the size of parts, 8192, costs more than it balances; twice, two parts, is as fast).
+/// 50k-triangle muscle refits in four (10.8k-14.2k triangles), which balance over two
+/// threads: 0.38 ms instead of 0.59 ms with a second core free (half the size of parts, 8192,
+/// costs more than it balances; twice, two parts, is as fast).
 pub(crate) const PART_TRIANGLES: usize = 16_384;
 
 /// Triangles of one subtree, as a parry mesh over their own vertices.
@@ -35,18 +36,21 @@ impl Part {
         }
     }
 
-    /// Moves the part's vertices to `live` (mesh vertices) and refits its BVH (parry's refit).
-    fn refit(&mut self, live: &[Vec3]) {
-        if self.vertices.is_empty() {
-            self.mesh.set_vertices(live);
-        } else {
-            let map = &self.vertices;
-            self.mesh.update_vertices(|v| {
-                for (d, &g) in v.iter_mut().zip(map) {
-                    *d = live[g as usize];
+    /// Moves the part's vertices to `source(g)` (mesh vertex `g`) and refits its BVH (parry's
+    /// refit).
+    fn refit(&mut self, source: &impl Fn(usize) -> Vec3) {
+        let map = &self.vertices;
+        self.mesh.update_vertices(|v| {
+            if map.is_empty() {
+                for (g, d) in v.iter_mut().enumerate() {
+                    *d = source(g);
                 }
-            });
-        }
+            } else {
+                for (d, &g) in v.iter_mut().zip(map) {
+                    *d = source(g as usize);
+                }
+            }
+        });
     }
 }
 
@@ -137,11 +141,6 @@ impl Parts {
         }
     }
 
-    /// Whether the mesh is in more than one part (refitted in parallel).
-    pub(super) fn is_split(&self) -> bool {
-        self.parts.len() > 1
-    }
-
     /// The bounding box of the whole mesh, as parry's root box of the whole BVH.
     pub(super) fn local_aabb(&self) -> Aabb {
         match self.top.first() {
@@ -150,19 +149,53 @@ impl Parts {
         }
     }
 
-    /// Moves every part to `live` (the mesh's vertices) and refits the parts' BVHs, one rayon
-    /// task per part (each refit depends only on `live`: the result is the same for any
-    /// thread count).
-    pub(super) fn refit(&mut self, live: &[Vec3]) {
-        if self.parts.len() == 1 {
-            self.parts[0].refit(live);
-        } else {
-            self.parts
-                .par_iter_mut()
-                .with_max_len(1)
-                .for_each(|p| p.refit(live));
-            self.update_top();
+    /// Moves every part to the mesh vertices `source` gives (`source(g)`: vertex `g`),
+    /// refits the parts' BVHs and runs `extra` once.
+    ///
+    /// The parts and `extra` are jobs taken in turn by the calling thread, which starts at
+    /// once, and by rayon tasks that join as threads come free: a busy machine costs no
+    /// worse than one thread doing it all, a free core halves the time. Each refit depends
+    /// only on `source`: the result is the same whichever thread runs it, for any thread
+    /// count.
+    pub(super) fn refit_with<S, E>(&mut self, source: &S, extra: E)
+    where
+        S: Fn(usize) -> Vec3 + Sync,
+        E: FnOnce() + Send,
+    {
+        if let [part] = &mut self.parts[..] {
+            extra();
+            part.refit(source);
+            return;
         }
+        let slots: Vec<Mutex<&mut Part>> = self.parts.iter_mut().map(Mutex::new).collect();
+        let extra = Mutex::new(Some(extra));
+        let next = AtomicUsize::new(0);
+        let work = || {
+            loop {
+                let job = next.fetch_add(1, Ordering::Relaxed);
+                if let Some(slot) = slots.get(job) {
+                    slot.lock()
+                        .unwrap_or_else(PoisonError::into_inner)
+                        .refit(source);
+                } else if job == slots.len() {
+                    let f = extra.lock().unwrap_or_else(PoisonError::into_inner).take();
+                    if let Some(f) = f {
+                        f();
+                    }
+                } else {
+                    break;
+                }
+            }
+        };
+        let helpers = rayon::current_num_threads().min(slots.len());
+        rayon::in_place_scope(|scope| {
+            for _ in 0..helpers {
+                scope.spawn(|_| work());
+            }
+            work();
+        });
+        drop(slots);
+        self.update_top();
     }
 
     /// Recomputes the top nodes' boxes from the parts' (children before parents).
