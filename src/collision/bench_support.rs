@@ -82,10 +82,16 @@ impl<P: Projection + ?Sized> Projection for Timed<'_, P> {
 /// orientation) on mesh colliders, the public [`ColliderMesh::project_point`](super::ColliderMesh::project_point) on primitives,
 /// in parallel over the same fixed chunks as a contact pass. `x` in the caller's order.
 pub fn naive_pass_seconds(collision: &SkinCollision, x: &[Vec3]) -> f64 {
+    // Whole parry meshes are made on demand (ColliderMesh::parry_mesh): before the clock.
+    let meshes: Vec<_> = collision
+        .colliders()
+        .iter()
+        .map(|c| c.parry_mesh())
+        .collect();
     let start = Instant::now();
-    for collider in collision.colliders() {
+    for (collider, mesh) in collision.colliders().iter().zip(meshes) {
         let pose = collider.pose();
-        let sum: f32 = match collider.parry_mesh() {
+        let sum: f32 = match mesh {
             Some(mesh) => x
                 .par_chunks(CHUNK)
                 .map(|c| {

@@ -6,12 +6,18 @@ use parry3d::math::Pose;
 use parry3d::query::PointQuery;
 use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{
-    Ball, Capsule, CompositeShapeRef, TriMesh as ParryMesh, TrianglePointLocation,
+    Ball, Capsule, CompositeShapeRef, TriMesh as ParryMesh, Triangle, TrianglePointLocation,
 };
+use std::sync::OnceLock;
 
 use super::CollisionError;
 use super::cache::{PATCH, Patch};
 use crate::mesh::TriMesh;
+use parts::Parts;
+
+mod parts;
+#[cfg(test)]
+mod tests;
 
 /// Marks "no triangle" in neighbour tables and caches.
 pub(crate) const NONE: u32 = u32::MAX;
@@ -43,11 +49,19 @@ enum Shape {
 
 #[derive(Debug, Clone)]
 struct MeshShape {
-    /// Built without `ORIENTED`: refits cost only the BVH.
-    mesh: ParryMesh,
+    /// The triangles as subtrees of one parry BVH, refitted in parallel and searched as the
+    /// whole mesh's BVH (see [`parts`]). Parry meshes built without `ORIENTED`: refits cost
+    /// only the BVH.
+    parts: Parts,
+    /// Triangles (mesh vertex ids), as built.
+    indices: Vec<[u32; 3]>,
+    /// The vertices the parts are fitted to: `current`, or interpolated ones during substeps.
+    live: Vec<Vec3>,
+    /// The vertices as built (the BVH's structure was built over them).
+    rest: Vec<Vec3>,
     /// Vertices at the end of the previous frame.
     prev: Vec<Vec3>,
-    /// Vertices of the current frame (the mesh holds interpolated ones during substeps).
+    /// Vertices of the current frame.
     current: Vec<Vec3>,
     /// Triangle across each of a triangle's edges, in parry's local edge numbering (0: AB,
     /// 1: BC, 2: AC).
@@ -55,6 +69,9 @@ struct MeshShape {
     /// CSR vertex → incident triangles.
     vt_offsets: Vec<u32>,
     vt: Vec<u32>,
+    /// The whole mesh as one parry mesh at `live`, made on demand by
+    /// [`ColliderMesh::parry_mesh`] and dropped when `live` changes.
+    whole: OnceLock<ParryMesh>,
 }
 
 /// A closed surface the skin slides over: a deforming muscle mesh, or a rigid bone (a capsule,
@@ -111,6 +128,16 @@ impl ColliderMesh {
         vertices: Vec<Vec3>,
         triangles: Vec<[u32; 3]>,
     ) -> Result<Self, CollisionError> {
+        Self::from_mesh_in_parts(vertices, triangles, parts::PART_TRIANGLES)
+    }
+
+    /// [`from_mesh`](Self::from_mesh) with BVH parts of at most `max_part` triangles where the
+    /// BVH allows.
+    pub(crate) fn from_mesh_in_parts(
+        vertices: Vec<Vec3>,
+        triangles: Vec<[u32; 3]>,
+        max_part: usize,
+    ) -> Result<Self, CollisionError> {
         let checked = TriMesh::new(vertices, triangles)?;
         let topo = checked.topology();
         let tris = topo.triangles();
@@ -166,17 +193,22 @@ impl ColliderMesh {
             }
         }
         let vertices = pos.to_vec();
-        let mesh = ParryMesh::new(vertices.clone(), tris.to_vec())
+        let whole = ParryMesh::new(vertices.clone(), tris.to_vec())
             .map_err(|e| CollisionError::Parry(e.to_string()))?;
-        let local_aabb = mesh.local_aabb();
+        let local_aabb = whole.local_aabb();
+        let parts = Parts::new(whole, max_part);
         Ok(Self::with_shape(
             Shape::Mesh(Box::new(MeshShape {
-                mesh,
+                parts,
+                indices: tris.to_vec(),
+                live: vertices.clone(),
+                rest: vertices.clone(),
                 prev: vertices.clone(),
                 current: vertices,
                 across,
                 vt_offsets,
                 vt,
+                whole: OnceLock::new(),
             })),
             local_aabb,
         ))
@@ -259,7 +291,9 @@ impl ColliderMesh {
     }
 
     /// Deforms a mesh collider (rest-frame positions, same count and order as built): a BVH
-    /// refit, no pseudo-normal recomputation.
+    /// refit, no pseudo-normal recomputation. A mesh of more than 16384 triangles holds its
+    /// BVH in subtrees refitted in parallel (rayon), which answer every query exactly as one
+    /// BVH over the whole mesh.
     pub fn set_vertices(&mut self, vertices: &[Vec3]) -> Result<(), CollisionError> {
         let Shape::Mesh(m) = &mut self.shape else {
             return Err(CollisionError::NotAMesh);
@@ -271,16 +305,27 @@ impl ColliderMesh {
                 expected: m.current.len(),
             });
         }
-        if let Some(i) = vertices.iter().position(|v| !v.is_finite()) {
+        // One branch-free read of both arrays checks the input and bounds the motion.
+        let (mut finite, mut moved_sq) = (true, 0.0f32);
+        for (v, l) in vertices.iter().zip(&m.live) {
+            finite &= v.is_finite();
+            moved_sq = moved_sq.max(l.distance_squared(*v));
+        }
+        if !finite {
             return Err(CollisionError::NonFinite {
                 what: "collider vertex",
-                index: i,
+                index: vertices.iter().position(|v| !v.is_finite()).unwrap_or(0),
             });
         }
-        let moved = max_displacement(m.mesh.vertices(), vertices);
-        m.current.copy_from_slice(vertices);
-        m.mesh.set_vertices(vertices);
-        self.local_aabb = m.mesh.local_aabb();
+        let moved = moved_sq.sqrt();
+        m.whole = OnceLock::new();
+        let (live, current) = (&mut m.live, &mut m.current);
+        // The copies are one more job next to the parts' refits.
+        m.parts.refit_with(&|g| vertices[g], || {
+            live.copy_from_slice(vertices);
+            current.copy_from_slice(vertices);
+        });
+        self.local_aabb = m.parts.local_aabb();
         self.travel_m += moved as f64;
         Ok(())
     }
@@ -288,15 +333,26 @@ impl ColliderMesh {
     /// Number of triangles (0 for primitives).
     pub fn triangle_count(&self) -> usize {
         match &self.shape {
-            Shape::Mesh(m) => m.mesh.indices().len(),
+            Shape::Mesh(m) => m.indices.len(),
             _ => 0,
         }
     }
 
-    /// The parry mesh of a mesh collider, in its rest frame (for comparisons and debugging).
+    /// The whole mesh of a mesh collider as one parry mesh, in its rest frame and its current
+    /// shape (for comparisons and debugging): built over the shape the collider was built
+    /// with and refitted to the current one, as parry's own deforming mesh would be, so its
+    /// answers are the collider's, ties between triangles included. The collider holds its
+    /// BVH in parts (see [`set_vertices`](Self::set_vertices)): this mesh is made on the first
+    /// call after the shape changed (a full BVH build, about 15 ms for 50k triangles) and kept
+    /// until the next change.
     pub fn parry_mesh(&self) -> Option<&ParryMesh> {
         match &self.shape {
-            Shape::Mesh(m) => Some(&m.mesh),
+            Shape::Mesh(m) => Some(m.whole.get_or_init(|| {
+                let mut whole = ParryMesh::new(m.rest.clone(), m.indices.clone())
+                    .expect("the triangles were accepted by parry when the collider was built");
+                whole.set_vertices(&m.live);
+                whole
+            })),
             _ => None,
         }
     }
@@ -353,18 +409,23 @@ impl ColliderMesh {
             && shape
             && m.prev != m.current
         {
-            let target: Vec<Vec3> = if s >= 1.0 {
-                m.current.clone()
-            } else {
-                m.prev
-                    .iter()
-                    .zip(&m.current)
-                    .map(|(a, b)| a.lerp(*b, s))
-                    .collect()
+            let (prev, current) = (&m.prev, &m.current);
+            let at = |g: usize| {
+                if s >= 1.0 {
+                    current[g]
+                } else {
+                    prev[g].lerp(current[g], s)
+                }
             };
-            self.travel_m += max_displacement(m.mesh.vertices(), &target) as f64;
-            m.mesh.set_vertices(&target);
-            self.local_aabb = m.mesh.local_aabb();
+            // The parts interpolate their own vertices; one more job moves `live`.
+            let live = &mut m.live;
+            let mut moved_sq = 0.0f32;
+            m.parts.refit_with(&at, || {
+                moved_sq = move_to(live, (0..prev.len()).map(at));
+            });
+            m.whole = OnceLock::new();
+            self.travel_m += moved_sq.sqrt() as f64;
+            self.local_aabb = m.parts.local_aabb();
         }
     }
 
@@ -412,11 +473,9 @@ impl ColliderMesh {
         match &self.shape {
             // Outside the box the point is outside the (closed) surface: the distance is the
             // unsigned one, and a search bounded by `cap` finds it if it is below.
-            Shape::Mesh(m) if !self.local_aabb.contains_local_point(p) => {
-                CompositeShapeRef(&m.mesh)
-                    .project_local_point_and_get_location(p, cap, false)
-                    .map_or(cap, |(_, proj, _)| p.distance(proj.point))
-            }
+            Shape::Mesh(m) if !self.local_aabb.contains_local_point(p) => m
+                .search(p, cap)
+                .map_or(cap, |(_, proj, _)| p.distance(proj.point)),
             _ => self.project_local(p, NONE).signed_distance,
         }
     }
@@ -460,8 +519,7 @@ impl ColliderMesh {
     pub(crate) fn local_surface_point(&self, part: u32, coords: Vec3) -> Vec3 {
         match &self.shape {
             Shape::Mesh(m) => {
-                let v = m.mesh.vertices();
-                let [a, b, c] = m.mesh.indices()[part as usize].map(|i| v[i as usize]);
+                let [a, b, c] = m.corners(part);
                 a * coords.x + b * coords.y + c * coords.z
             }
             _ => coords,
@@ -473,7 +531,7 @@ impl ColliderMesh {
     pub(crate) fn cast_local_segment(&self, from: Vec3, delta: Vec3) -> Option<(Vec3, Vec3)> {
         let ray = Ray::new(from, delta);
         let hit = match &self.shape {
-            Shape::Mesh(m) => m.mesh.cast_local_ray_and_get_normal(&ray, 1.0, false),
+            Shape::Mesh(m) => m.cast_ray(&ray, 1.0),
             Shape::Capsule { a, b, radius } => {
                 Capsule::new(*a, *b, *radius).cast_local_ray_and_get_normal(&ray, 1.0, true)
             }
@@ -493,19 +551,86 @@ impl ColliderMesh {
 }
 
 impl MeshShape {
+    /// The corners of triangle `t` now.
+    #[inline]
+    fn corners(&self, t: u32) -> [Vec3; 3] {
+        self.indices[t as usize].map(|i| self.live[i as usize])
+    }
+
+    /// Triangle `t` now, as parry's mesh gives it.
+    #[inline]
+    fn triangle(&self, t: u32) -> Triangle {
+        let [a, b, c] = self.corners(t);
+        Triangle::new(a, b, c)
+    }
+
+    /// parry's closest-point search of the whole mesh (`CompositeShapeRef::
+    /// project_local_point_and_get_location`, non-solid), limited to `max_dist`; the triangle
+    /// is a mesh triangle id.
+    fn search(
+        &self,
+        p: Vec3,
+        max_dist: f32,
+    ) -> Option<(u32, parry3d::query::PointProjection, TrianglePointLocation)> {
+        self.parts
+            .find_best(
+                max_dist,
+                |aabb, _| aabb.distance_to_local_point(p, true),
+                |part, bound| {
+                    CompositeShapeRef(&part.mesh)
+                        .project_local_point_and_get_location(p, bound, false)
+                        .map(|(t, proj, location)| {
+                            ((proj.point - p).length(), (part.global(t), proj, location))
+                        })
+                },
+            )
+            .map(|(_, found)| found)
+    }
+
+    /// The closest triangle to `p` by parry's search of the whole mesh
+    /// (`CompositeShapeRef::project_local_point`, non-solid).
+    fn search_point(&self, p: Vec3) -> Option<u32> {
+        self.parts
+            .find_best(
+                f32::MAX,
+                |aabb, _| aabb.distance_to_local_point(p, true),
+                |part, bound| {
+                    CompositeShapeRef(&part.mesh)
+                        .project_local_point(p, bound, false)
+                        .map(|(t, proj)| ((proj.point - p).length(), part.global(t)))
+                },
+            )
+            .map(|(_, t)| t)
+    }
+
+    /// The first hit of `ray` within `max_toi` on the (hollow) mesh, as parry's
+    /// `TriMesh::cast_local_ray_and_get_normal` finds it.
+    fn cast_ray(&self, ray: &Ray, max_toi: f32) -> Option<parry3d::query::RayIntersection> {
+        self.parts
+            .find_best(
+                max_toi,
+                |aabb, best| aabb.cast_local_ray(ray, best, true).unwrap_or(f32::MAX),
+                |part, best| {
+                    CompositeShapeRef(&part.mesh)
+                        .cast_local_ray_and_get_normal(ray, best, false)
+                        .map(|(t, hit)| (hit.time_of_impact, hit.with_subshape(part.global(t))))
+                },
+            )
+            .map(|(_, hit)| hit)
+    }
+
     fn face_normal(&self, t: u32) -> Vec3 {
-        let v = self.mesh.vertices();
-        let [a, b, c] = self.mesh.indices()[t as usize].map(|i| v[i as usize]);
+        let [a, b, c] = self.corners(t);
         (b - a).cross(c - a).normalize_or_zero()
     }
 
     fn vertex_normal(&self, vertex: u32) -> Vec3 {
-        let v = self.mesh.vertices();
+        let v = &self.live;
         let range = self.vt_offsets[vertex as usize] as usize
             ..self.vt_offsets[vertex as usize + 1] as usize;
         let mut sum = Vec3::ZERO;
         for &t in &self.vt[range] {
-            let idx = self.mesh.indices()[t as usize];
+            let idx = self.indices[t as usize];
             let k = idx.iter().position(|&i| i == vertex).unwrap_or(0);
             let p = v[idx[k] as usize];
             let e1 = (v[idx[(k + 1) % 3] as usize] - p).normalize_or_zero();
@@ -526,23 +651,19 @@ impl MeshShape {
     ) -> (f32, parry3d::query::PointProjection, TrianglePointLocation) {
         use parry3d::query::PointQueryWithLocation;
         let (proj, location) = self
-            .mesh
             .triangle(t)
             .project_local_point_and_get_location(p, false);
         ((proj.point - p).length(), proj, location)
     }
 
     fn project(&self, p: Vec3, hint: u32) -> SurfaceProjection {
-        let shape = CompositeShapeRef(&self.mesh);
         let mut bound = f32::MAX;
-        if hint != NONE && (hint as usize) < self.mesh.indices().len() {
+        if hint != NONE && (hint as usize) < self.indices.len() {
             let (d, _, _) = self.triangle_projection(hint, p);
             // Strictly above the hint's own distance: the hint (or a closer triangle) is found.
             bound = d * (1.0 + 1e-5) + f32::MIN_POSITIVE;
         }
-        let found = shape
-            .project_local_point_and_get_location(p, bound, false)
-            .or_else(|| shape.project_local_point_and_get_location(p, f32::MAX, false));
+        let found = self.search(p, bound).or_else(|| self.search(p, f32::MAX));
         let Some((t, proj, location)) = found else {
             // Only for non-finite input.
             return SurfaceProjection {
@@ -564,7 +685,7 @@ impl MeshShape {
         point: Vec3,
         location: TrianglePointLocation,
     ) -> SurfaceProjection {
-        let idx = self.mesh.indices()[t as usize];
+        let idx = self.indices[t as usize];
         let feature_normal = match location {
             TrianglePointLocation::OnEdge(i, _) => {
                 let other = self.across[t as usize][i as usize];
@@ -583,8 +704,7 @@ impl MeshShape {
     /// robustness checks; equal to parry's distance up to rounding).
     #[inline]
     fn triangle_distance(&self, t: u32, p: Vec3) -> f32 {
-        let v = self.mesh.vertices();
-        let [a, b, c] = self.mesh.indices()[t as usize].map(|i| v[i as usize]);
+        let [a, b, c] = self.corners(t);
         triangle_distance_sq(p, a, b, c).sqrt()
     }
 
@@ -629,13 +749,13 @@ impl MeshShape {
         patch: &mut Patch,
     ) -> SurfaceProjection {
         patch.clear();
-        let triangles = self.mesh.indices().len();
+        let triangles = self.indices.len();
         let hint = if hint != NONE && (hint as usize) < triangles {
             hint
         } else {
             // No usable hint: one plain search finds the nearest triangle first.
-            match CompositeShapeRef(&self.mesh).project_local_point(p, f32::MAX, false) {
-                Some((t, _)) => t,
+            match self.search_point(p) {
+                Some(t) => t,
                 None => return self.project(p, NONE),
             }
         };
@@ -646,32 +766,40 @@ impl MeshShape {
             return self.project(p, hint);
         }
         let near = std::cell::RefCell::new(([(f32::INFINITY, NONE); PATCH + 1], 0usize));
-        let _ = self.mesh.bvh().find_best(
-            bound,
-            |node, _| node.aabb().distance_to_local_point(p, true),
-            |t, _| {
-                let d = self.triangle_distance(t, p);
-                let mut guard = near.borrow_mut();
-                let (list, len) = &mut *guard;
-                if d < bound {
-                    // Sorted insertion, keeping the first of equal distances first.
-                    let mut i = (*len).min(PATCH);
-                    if i < PATCH || d < list[PATCH].0 {
-                        while i > 0 && list[i - 1].0 > d {
-                            list[i] = list[i - 1];
-                            i -= 1;
-                        }
-                        list[i] = (d, t);
-                        *len = (*len + 1).min(PATCH + 1);
+        let node_cost = |aabb: &Aabb, _| aabb.distance_to_local_point(p, true);
+        let leaf_cost = |t: u32| {
+            let d = self.triangle_distance(t, p);
+            let mut guard = near.borrow_mut();
+            let (list, len) = &mut *guard;
+            if d < bound {
+                // Sorted insertion, keeping the first of equal distances first.
+                let mut i = (*len).min(PATCH);
+                if i < PATCH || d < list[PATCH].0 {
+                    while i > 0 && list[i - 1].0 > d {
+                        list[i] = list[i - 1];
+                        i -= 1;
                     }
+                    list[i] = (d, t);
+                    *len = (*len + 1).min(PATCH + 1);
                 }
-                Some(if *len == PATCH + 1 {
-                    list[PATCH].0
-                } else {
-                    bound
-                })
-            },
-        );
+            }
+            if *len == PATCH + 1 {
+                list[PATCH].0
+            } else {
+                bound
+            }
+        };
+        // parry's best-first search over the whole mesh, part by part (see `parts`).
+        let _ = self.parts.find_best(bound, node_cost, |part, best| {
+            part.mesh
+                .bvh()
+                .find_best(
+                    best,
+                    |node, _| node_cost(&node.aabb(), 0.0),
+                    |t, _| Some(leaf_cost(part.global(t))),
+                )
+                .map(|(_, cost)| (cost, ()))
+        });
         let (list, len) = near.into_inner();
         if len == 0 {
             return self.project(p, hint);
@@ -853,6 +981,17 @@ fn directed_edge(tri: [u32; 3], a: u32, b: u32) -> (usize, bool) {
         }
     }
     (0, false)
+}
+
+/// Moves `live` to `target`, returning the largest squared displacement, m² (a maximum: the
+/// same in any order of chunks).
+fn move_to(live: &mut [Vec3], target: impl Iterator<Item = Vec3>) -> f32 {
+    let mut moved_sq = 0.0f32;
+    for (l, t) in live.iter_mut().zip(target) {
+        moved_sq = moved_sq.max(l.distance_squared(t));
+        *l = t;
+    }
+    moved_sq
 }
 
 fn max_displacement(a: &[Vec3], b: &[Vec3]) -> f32 {

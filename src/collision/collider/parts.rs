@@ -1,0 +1,466 @@
+//! A deforming mesh's BVH cut into subtrees, refitted in parallel and searched as one tree.
+
+use glam::Vec3;
+use parry3d::bounding_volume::{Aabb, BoundingVolume};
+use parry3d::partitioning::{Bvh, BvhNode, BvhNodeIndex, TraversalAction};
+use parry3d::shape::TriMesh as ParryMesh;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, PoisonError};
+
+/// Largest part: a subtree with more triangles is split (where both of its children have more
+/// than one triangle). A mesh up to this size refits serially in one part; the bench's
+/// 50k-triangle muscle refits in four (10.8k-14.2k triangles), which balance over two
+/// threads: 0.38 ms instead of 0.59 ms with a second core free (half the size of parts, 8192,
+/// costs more than it balances; twice, two parts, is as fast).
+pub(crate) const PART_TRIANGLES: usize = 16_384;
+
+/// Triangles of one subtree, as a parry mesh over their own vertices.
+#[derive(Debug, Clone)]
+pub(super) struct Part {
+    /// The part's triangles over part-local vertices, without `ORIENTED`.
+    pub(super) mesh: ParryMesh,
+    /// Part-local vertex → mesh vertex (empty: the identity, a part holding the whole mesh).
+    vertices: Vec<u32>,
+    /// Part-local triangle → mesh triangle (empty: the identity).
+    triangles: Vec<u32>,
+}
+
+impl Part {
+    /// The mesh triangle of part-local triangle `t`.
+    #[inline]
+    pub(super) fn global(&self, t: u32) -> u32 {
+        if self.triangles.is_empty() {
+            t
+        } else {
+            self.triangles[t as usize]
+        }
+    }
+
+    /// Moves the part's vertices to `source(g)` (mesh vertex `g`) and refits its BVH (parry's
+    /// refit).
+    fn refit(&mut self, source: &impl Fn(usize) -> Vec3) {
+        let map = &self.vertices;
+        self.mesh.update_vertices(|v| {
+            if map.is_empty() {
+                for (g, d) in v.iter_mut().enumerate() {
+                    *d = source(g);
+                }
+            } else {
+                for (d, &g) in v.iter_mut().zip(map) {
+                    *d = source(g as usize);
+                }
+            }
+        });
+    }
+}
+
+/// A child of a top node: another top node or a part.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Child {
+    Node(u32),
+    Part(u32),
+}
+
+/// One wide node of the whole BVH above the parts: its two children and their boxes.
+#[derive(Debug, Clone)]
+struct TopNode {
+    children: [Child; 2],
+    aabbs: [Aabb; 2],
+}
+
+/// A mesh's triangles in parts, refitted in parallel and searched as one BVH.
+///
+/// parry refits a [`TriMesh`](ParryMesh)'s BVH serially and gives no mutable access to it, so
+/// a mesh collider holds its triangles in parts: each part is a parry mesh over the triangles
+/// of one subtree of the BVH parry builds over the whole mesh, below its top levels. parry's
+/// binned build splits a set of leaves the same way wherever that set sits in a tree, so each
+/// part's own BVH is that subtree, node for node (checked when the parts are made; a mesh whose
+/// parts would differ keeps one part). A search visits the top levels as parry's best-first
+/// traversal of the whole tree would, in the same order with the same pruning, and each part's
+/// subtree with parry's own search bounded by the best cost so far: it finds the triangle the
+/// search over the whole mesh finds, ties included.
+#[derive(Debug, Clone)]
+pub(super) struct Parts {
+    parts: Vec<Part>,
+    /// The whole BVH's wide nodes above the parts, parents before children (empty: one part).
+    top: Vec<TopNode>,
+}
+
+impl Parts {
+    /// Cuts `whole` (a parry mesh over every triangle, as built) into parts of at most
+    /// `max_part` triangles where its BVH allows; one part when a part's BVH would not be the
+    /// whole BVH's subtree.
+    pub(super) fn new(whole: ParryMesh, max_part: usize) -> Self {
+        let bvh = whole.bvh();
+        let mut plan = Plan {
+            bvh,
+            max_part: max_part.max(2),
+            parts: Vec::new(),
+            top: Vec::new(),
+            subtrees: Vec::new(),
+        };
+        let n = bvh.leaf_count() as usize;
+        let root = root_children(bvh);
+        match root {
+            Some([l, r]) if n > plan.max_part => {
+                plan.top.push(TopNode {
+                    children: [Child::Part(0); 2],
+                    aabbs: [Aabb::new_invalid(); 2],
+                });
+                let left = plan.split(l);
+                let right = plan.split(r);
+                plan.top[0].children = [left, right];
+            }
+            _ => {}
+        }
+        if plan.parts.len() < 2 {
+            return Self::single(whole);
+        }
+        let (parts, top, subtrees) = (plan.parts, plan.top, plan.subtrees);
+        let built: Option<Vec<Part>> = parts
+            .into_iter()
+            .zip(&subtrees)
+            .map(|(tris, &subtree)| make_part(&whole, tris, subtree))
+            .collect();
+        let Some(parts) = built else {
+            return Self::single(whole);
+        };
+        let mut out = Self { parts, top };
+        out.update_top();
+        out
+    }
+
+    fn single(whole: ParryMesh) -> Self {
+        Self {
+            parts: vec![Part {
+                mesh: whole,
+                vertices: Vec::new(),
+                triangles: Vec::new(),
+            }],
+            top: Vec::new(),
+        }
+    }
+
+    /// The bounding box of the whole mesh, as parry's root box of the whole BVH.
+    pub(super) fn local_aabb(&self) -> Aabb {
+        match self.top.first() {
+            Some(root) => root.aabbs[0].merged(&root.aabbs[1]),
+            None => self.parts[0].mesh.local_aabb(),
+        }
+    }
+
+    /// Moves every part to the mesh vertices `source` gives (`source(g)`: vertex `g`),
+    /// refits the parts' BVHs and runs `extra` once.
+    ///
+    /// The parts and `extra` are jobs taken in turn by the calling thread, which starts at
+    /// once, and by rayon tasks that join as threads come free: a busy machine costs no
+    /// worse than one thread doing it all, a free core halves the time. Each refit depends
+    /// only on `source`: the result is the same whichever thread runs it, for any thread
+    /// count.
+    pub(super) fn refit_with<S, E>(&mut self, source: &S, extra: E)
+    where
+        S: Fn(usize) -> Vec3 + Sync,
+        E: FnOnce() + Send,
+    {
+        if let [part] = &mut self.parts[..] {
+            extra();
+            part.refit(source);
+            return;
+        }
+        let slots: Vec<Mutex<&mut Part>> = self.parts.iter_mut().map(Mutex::new).collect();
+        let extra = Mutex::new(Some(extra));
+        let next = AtomicUsize::new(0);
+        let work = || {
+            loop {
+                let job = next.fetch_add(1, Ordering::Relaxed);
+                if let Some(slot) = slots.get(job) {
+                    slot.lock()
+                        .unwrap_or_else(PoisonError::into_inner)
+                        .refit(source);
+                } else if job == slots.len() {
+                    let f = extra.lock().unwrap_or_else(PoisonError::into_inner).take();
+                    if let Some(f) = f {
+                        f();
+                    }
+                } else {
+                    break;
+                }
+            }
+        };
+        let helpers = rayon::current_num_threads().min(slots.len());
+        rayon::in_place_scope(|scope| {
+            for _ in 0..helpers {
+                scope.spawn(|_| work());
+            }
+            work();
+        });
+        drop(slots);
+        self.update_top();
+    }
+
+    /// Recomputes the top nodes' boxes from the parts' (children before parents).
+    fn update_top(&mut self) {
+        for i in (0..self.top.len()).rev() {
+            for k in 0..2 {
+                self.top[i].aabbs[k] = match self.top[i].children[k] {
+                    Child::Part(p) => self.parts[p as usize].mesh.local_aabb(),
+                    Child::Node(j) => {
+                        let a = &self.top[j as usize].aabbs;
+                        a[0].merged(&a[1])
+                    }
+                };
+            }
+        }
+    }
+
+    /// parry's [`Bvh::find_best`] over the whole mesh: `node_cost` is the cost of a box given
+    /// the best cost so far, as parry's search takes it; `part_best` searches one part's BVH
+    /// bounded by a cost and returns its best cost and answer (parry returns only answers
+    /// cheaper than the bound). The top nodes are visited in the order and with the pruning of
+    /// parry's traversal, so the answer is the one parry's search over the whole BVH gives.
+    pub(super) fn find_best<T>(
+        &self,
+        max_cost: f32,
+        node_cost: impl Fn(&Aabb, f32) -> f32,
+        mut part_best: impl FnMut(&Part, f32) -> Option<(f32, T)>,
+    ) -> Option<(f32, T)> {
+        let mut best = (max_cost, None);
+        if self.top.is_empty() {
+            self.visit_part(0, &mut best, &mut part_best);
+        } else {
+            self.visit(0, &mut best, &node_cost, &mut part_best);
+        }
+        let (cost, value) = best;
+        value.map(|v| (cost, v))
+    }
+
+    fn visit_part<T>(
+        &self,
+        part: u32,
+        best: &mut (f32, Option<T>),
+        part_best: &mut impl FnMut(&Part, f32) -> Option<(f32, T)>,
+    ) {
+        if let Some((cost, value)) = part_best(&self.parts[part as usize], best.0)
+            && cost < best.0
+        {
+            *best = (cost, Some(value));
+        }
+    }
+
+    /// One wide node as parry's `find_best` loop handles it: both children scored with the
+    /// best cost at this point, the cheaper first (the left one on a tie), each kept if its
+    /// score is below that best cost; the farther child waits until the nearer one's subtree
+    /// is done (parry's stack), without being scored again.
+    fn visit<T>(
+        &self,
+        node: u32,
+        best: &mut (f32, Option<T>),
+        node_cost: &impl Fn(&Aabb, f32) -> f32,
+        part_best: &mut impl FnMut(&Part, f32) -> Option<(f32, T)>,
+    ) {
+        let n = &self.top[node as usize];
+        let mut near = (node_cost(&n.aabbs[0], best.0), n.children[0]);
+        let mut far = (node_cost(&n.aabbs[1], best.0), n.children[1]);
+        if near.0 > far.0 {
+            std::mem::swap(&mut near, &mut far);
+        }
+        let keep = |score: f32| score < best.0 && score != f32::MAX;
+        let (go_near, go_far) = (keep(near.0), keep(far.0));
+        for (go, child) in [(go_near, near.1), (go_far, far.1)] {
+            if go {
+                match child {
+                    Child::Node(j) => self.visit(j, best, node_cost, part_best),
+                    Child::Part(p) => self.visit_part(p, best, part_best),
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+impl Parts {
+    /// Number of parts.
+    pub(super) fn len(&self) -> usize {
+        self.parts.len()
+    }
+
+    /// Every part's vertices, and its BVH's nodes in traversal order (boxes as bits, leaves as
+    /// mesh triangle ids): equal fingerprints, equal parts.
+    pub(super) fn fingerprint(&self) -> Vec<(Vec<[u32; 3]>, Vec<Visited>)> {
+        self.parts
+            .iter()
+            .map(|p| {
+                let v = p
+                    .mesh
+                    .vertices()
+                    .iter()
+                    .map(|v| v.to_array().map(f32::to_bits));
+                let mut nodes = Vec::new();
+                p.mesh.bvh().traverse(|node| {
+                    nodes.push(visited(node, |t| p.global(t)));
+                    TraversalAction::Continue
+                });
+                (v.collect(), nodes)
+            })
+            .collect()
+    }
+
+    /// The number of triangles in each part.
+    pub(super) fn sizes(&self) -> Vec<usize> {
+        self.parts.iter().map(|p| p.mesh.indices().len()).collect()
+    }
+
+    /// Depth of the top levels above the parts (0: one part).
+    pub(super) fn top_depth(&self) -> usize {
+        fn depth(top: &[TopNode], c: Child) -> usize {
+            match c {
+                Child::Part(_) => 0,
+                Child::Node(i) => {
+                    1 + top[i as usize]
+                        .children
+                        .iter()
+                        .map(|&c| depth(top, c))
+                        .max()
+                        .unwrap_or(0)
+                }
+            }
+        }
+        if self.top.is_empty() {
+            0
+        } else {
+            depth(&self.top, Child::Node(0))
+        }
+    }
+}
+
+/// Splitting state while the parts are planned.
+struct Plan<'a> {
+    bvh: &'a Bvh,
+    max_part: usize,
+    /// Each part's triangles (mesh ids).
+    parts: Vec<Vec<u32>>,
+    top: Vec<TopNode>,
+    /// Each part's subtree root in the whole BVH.
+    subtrees: Vec<BvhNodeIndex>,
+}
+
+impl Plan<'_> {
+    /// A part for the subtree at `index` if it is small enough (or cannot be split into two
+    /// subtrees of at least two triangles), else a top node over its two children.
+    fn split(&mut self, index: BvhNodeIndex) -> Child {
+        let leaves = subtree_leaves(self.bvh, index);
+        if leaves.len() > self.max_part
+            && let Some([l, r]) = children(self.bvh, index)
+        {
+            let id = self.top.len() as u32;
+            self.top.push(TopNode {
+                children: [Child::Part(0); 2],
+                aabbs: [Aabb::new_invalid(); 2],
+            });
+            let left = self.split(l);
+            let right = self.split(r);
+            self.top[id as usize].children = [left, right];
+            return Child::Node(id);
+        }
+        self.parts.push(leaves);
+        self.subtrees.push(index);
+        Child::Part(self.parts.len() as u32 - 1)
+    }
+}
+
+/// The root's two children, when the root has two internal ones (more than one leaf each).
+fn root_children(bvh: &Bvh) -> Option<[BvhNodeIndex; 2]> {
+    let mut found = Vec::with_capacity(2);
+    bvh.traverse_indexed(None, |node, index| {
+        found.push((index, node.is_leaf()));
+        TraversalAction::Prune
+    });
+    internal_pair(&found)
+}
+
+/// The two children of the internal node at `index`, when both are internal.
+fn children(bvh: &Bvh, index: BvhNodeIndex) -> Option<[BvhNodeIndex; 2]> {
+    let mut found = Vec::with_capacity(3);
+    bvh.traverse_indexed(Some(index), |node, i| {
+        found.push((i, node.is_leaf()));
+        if found.len() == 1 {
+            TraversalAction::Continue
+        } else {
+            TraversalAction::Prune
+        }
+    });
+    internal_pair(found.get(1..).unwrap_or(&[]))
+}
+
+fn internal_pair(found: &[(BvhNodeIndex, bool)]) -> Option<[BvhNodeIndex; 2]> {
+    match found {
+        [(l, false), (r, false)] => Some([*l, *r]),
+        _ => None,
+    }
+}
+
+/// The leaves (triangle ids) below the node at `index`, ascending.
+fn subtree_leaves(bvh: &Bvh, index: BvhNodeIndex) -> Vec<u32> {
+    let mut out = Vec::new();
+    bvh.traverse_indexed(Some(index), |node, _| {
+        if let Some(t) = node.leaf_data() {
+            out.push(t);
+        }
+        TraversalAction::Continue
+    });
+    out.sort_unstable();
+    out
+}
+
+/// One node of a traversal, for comparing two trees: box and leaf id (`None` for an internal
+/// node).
+type Visited = ([u32; 6], Option<u32>);
+
+fn visited(node: &BvhNode, leaf: impl Fn(u32) -> u32) -> Visited {
+    let (lo, hi) = (node.mins(), node.maxs());
+    (
+        [lo.x, lo.y, lo.z, hi.x, hi.y, hi.z].map(f32::to_bits),
+        node.leaf_data().map(leaf),
+    )
+}
+
+/// The part over triangles `tris` (ascending mesh ids) of `whole`, if its BVH is the subtree
+/// of `whole`'s at `subtree`, node for node (same boxes, same children on the same sides, same
+/// triangles).
+fn make_part(whole: &ParryMesh, tris: Vec<u32>, subtree: BvhNodeIndex) -> Option<Part> {
+    let wv = whole.vertices();
+    let wi = whole.indices();
+    let mut local = vec![u32::MAX; wv.len()];
+    let mut vertices = Vec::new();
+    let indices: Vec<[u32; 3]> = tris
+        .iter()
+        .map(|&t| {
+            wi[t as usize].map(|g| {
+                if local[g as usize] == u32::MAX {
+                    local[g as usize] = vertices.len() as u32;
+                    vertices.push(g);
+                }
+                local[g as usize]
+            })
+        })
+        .collect();
+    let positions = vertices.iter().map(|&g| wv[g as usize]).collect();
+    let mesh = ParryMesh::new(positions, indices).ok()?;
+    // The subtree below `subtree` (its root excluded: the part's root wide node is its
+    // children) against the part's whole tree, both in parry's traversal order.
+    let mut expected = Vec::new();
+    whole.bvh().traverse_indexed(Some(subtree), |node, _| {
+        expected.push(visited(node, |t| t));
+        TraversalAction::Continue
+    });
+    let mut got = Vec::with_capacity(expected.len());
+    mesh.bvh().traverse(|node| {
+        got.push(visited(node, |t| tris[t as usize]));
+        TraversalAction::Continue
+    });
+    (expected.get(1..) == Some(&got[..])).then_some(Part {
+        mesh,
+        vertices,
+        triangles: tris,
+    })
+}

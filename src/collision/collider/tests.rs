@@ -1,0 +1,366 @@
+//! Mesh colliders in BVH parts answer exactly as one parry mesh over every triangle.
+
+use glam::Vec3;
+use parry3d::math::Pose;
+use parry3d::query::{Ray, RayCast};
+use parry3d::shape::{CompositeShapeRef, TriMesh as ParryMesh};
+
+use super::*;
+use crate::collision::cache::{Answer, Slot};
+use crate::collision::shapes::ellipsoid;
+
+/// A small deterministic generator (64-bit LCG).
+struct Lcg(u64);
+
+impl Lcg {
+    /// Uniform in [0, 1).
+    fn next(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// Uniform in the cube [-s, s]³.
+    fn point(&mut self, s: f32) -> Vec3 {
+        Vec3::new(self.next(), self.next(), self.next()) * (2.0 * s) - Vec3::splat(s)
+    }
+}
+
+/// The bench muscle's shape, coarser.
+fn muscle(n_lat: u32, n_lon: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    ellipsoid(Vec3::ZERO, Vec3::new(0.04, 0.035, 0.15), n_lat, n_lon).unwrap()
+}
+
+/// A smooth deformation of the rest shape (a travelling bulge and a twist).
+fn deform(rest: &[Vec3], phase: f32) -> Vec<Vec3> {
+    rest.iter()
+        .map(|p| {
+            let bulge = 1.0 + 0.12 * (30.0 * p.z + phase).sin() * (3.0 * p.y.atan2(p.x)).cos();
+            let twist = glam::Quat::from_rotation_z(2.0 * p.z * phase.cos());
+            twist * Vec3::new(p.x * bulge, p.y * bulge, p.z * (1.0 + 0.05 * phase.sin()))
+        })
+        .collect()
+}
+
+fn mesh(c: &ColliderMesh) -> &MeshShape {
+    match &c.shape {
+        Shape::Mesh(m) => m,
+        _ => unreachable!("a mesh collider"),
+    }
+}
+
+fn bits(p: &SurfaceProjection) -> [u32; 11] {
+    let [a, b, c] = p.point.to_array().map(f32::to_bits);
+    let [d, e, f] = p.normal.to_array().map(f32::to_bits);
+    let [g, h, i] = p.coords.to_array().map(f32::to_bits);
+    [
+        a,
+        b,
+        c,
+        d,
+        e,
+        f,
+        p.signed_distance.to_bits(),
+        p.part,
+        g,
+        h,
+        i,
+    ]
+}
+
+fn aabb_bits(a: &Aabb) -> [u32; 6] {
+    let [a0, a1, a2] = a.mins.to_array().map(f32::to_bits);
+    let [b0, b1, b2] = a.maxs.to_array().map(f32::to_bits);
+    [a0, a1, a2, b0, b1, b2]
+}
+
+/// Query points around the surface of `c`: deep inside, outside, within a few mm, on the
+/// vertices, and out from the vertices along their normals (their closest feature is the
+/// vertex itself, an exact tie between the triangles around it).
+fn probes(c: &ColliderMesh, rng: &mut Lcg) -> Vec<Vec3> {
+    let m = mesh(c);
+    let v = &m.live;
+    let mut out = Vec::new();
+    for k in 0..1200 {
+        let p = v[(k * 7919) % v.len()];
+        out.push(match k % 6 {
+            0 => p * (0.1 + 0.85 * rng.next()),
+            1 => p * (1.1 + 1.5 * rng.next()) + rng.point(0.01),
+            2 | 3 => p + rng.point(0.003),
+            4 => p,
+            _ => p + m.vertex_normal(((k * 7919) % v.len()) as u32) * (0.01 * rng.next()),
+        });
+    }
+    out
+}
+
+/// Triangles around mesh vertex `vertex` whose parry distance to `p` equals the best one's
+/// exactly.
+fn tied(m: &MeshShape, vertex: usize, p: Vec3) -> usize {
+    let around = &m.vt[m.vt_offsets[vertex] as usize..m.vt_offsets[vertex + 1] as usize];
+    let d: Vec<f32> = around
+        .iter()
+        .map(|&t| m.triangle_projection(t, p).0)
+        .collect();
+    let best = d.iter().copied().fold(f32::INFINITY, f32::min);
+    d.iter().filter(|&&x| x == best).count()
+}
+
+/// Checks every query of `split` against one parry mesh over all triangles (`reference`, in
+/// the same shape, built at rest and refitted like the collider) and against `whole` (the
+/// same collider in one part); returns how many vertex probes were exact ties of two or more
+/// triangles.
+fn assert_same_answers(
+    split: &ColliderMesh,
+    whole: &ColliderMesh,
+    reference: &ParryMesh,
+    points: &[Vec3],
+    rng: &mut Lcg,
+    what: &str,
+) -> usize {
+    let (ms, mw) = (mesh(split), mesh(whole));
+    assert_eq!(
+        aabb_bits(split.local_aabb()),
+        aabb_bits(&reference.local_aabb()),
+        "{what}: box"
+    );
+    assert_eq!(ms.live, reference.vertices(), "{what}: vertices");
+    let mut ties = 0;
+    for (k, &p) in points.iter().enumerate() {
+        // parry's search over the whole mesh: same triangle, same point, same feature.
+        let got = ms.search(p, f32::MAX).unwrap();
+        let want = CompositeShapeRef(reference)
+            .project_local_point_and_get_location(p, f32::MAX, false)
+            .unwrap();
+        assert_eq!(got.0, want.0, "{what}: triangle at probe {k} {p}");
+        assert_eq!(got.1.point, want.1.point, "{what}: point at probe {k}");
+        assert_eq!(
+            format!("{:?}", got.2),
+            format!("{:?}", want.2),
+            "{what}: feature at probe {k}"
+        );
+        let plain = CompositeShapeRef(reference)
+            .project_local_point(p, f32::MAX, false)
+            .unwrap();
+        assert_eq!(
+            ms.search_point(p),
+            Some(plain.0),
+            "{what}: plain search {k}"
+        );
+        if k % 6 == 5 {
+            let vertex = (k * 7919) % ms.live.len();
+            if tied(ms, vertex, p) >= 2 {
+                ties += 1;
+            }
+        }
+        // The collider's answers, with and without a hint, capped or not.
+        let hint = (k as u32 * 31) % ms.indices.len() as u32;
+        for h in [NONE, hint, got.0] {
+            assert_eq!(
+                bits(&split.project_local(p, h)),
+                bits(&whole.project_local(p, h)),
+                "{what}: projection at probe {k}, hint {h}"
+            );
+        }
+        assert_eq!(split.project_local(p, NONE).part, want.0);
+        for cap in [0.001, 0.02, f32::MAX] {
+            assert_eq!(
+                split.distance_local_capped(p, cap).to_bits(),
+                whole.distance_local_capped(p, cap).to_bits(),
+                "{what}: capped distance at probe {k}"
+            );
+        }
+        // Rays: the first hit of a segment, as parry's ray cast on the whole mesh.
+        let delta = rng.point(0.05) + (Vec3::ZERO - p) * rng.next();
+        let ray = Ray::new(p, delta);
+        let hit = ms.cast_ray(&ray, 1.0);
+        let want_hit = reference.cast_local_ray_and_get_normal(&ray, 1.0, false);
+        assert_eq!(
+            format!("{hit:?}"),
+            format!("{want_hit:?}"),
+            "{what}: ray from probe {k}"
+        );
+        assert_eq!(
+            format!("{:?}", split.cast_local_segment(p, delta)),
+            format!("{:?}", whole.cast_local_segment(p, delta)),
+            "{what}: segment from probe {k}"
+        );
+    }
+    assert_eq!(mw.parts.len(), 1);
+    ties
+}
+
+/// A mesh cut into many parts (four levels above them) answers every query bit for bit as
+/// one parry mesh over all its triangles, ties included, at rest, after `set_vertices` and
+/// at an interpolated substep shape; and the contact cache's patches (which hold triangle
+/// ids) give the same answers and certificates as in one part.
+#[test]
+fn split_mesh_answers_like_one_parry_mesh() {
+    let (v, t) = muscle(40, 64);
+    let mut split = ColliderMesh::from_mesh_in_parts(v.clone(), t.clone(), 300).unwrap();
+    let mut whole = ColliderMesh::from_mesh_in_parts(v.clone(), t.clone(), usize::MAX).unwrap();
+    let mut reference = ParryMesh::new(v.clone(), t.clone()).unwrap();
+    let parts = &mesh(&split).parts;
+    assert!(parts.len() >= 16, "{:?}", parts.sizes());
+    assert!(parts.top_depth() >= 4);
+    assert!(parts.sizes().iter().all(|&s| s <= 300));
+    assert_eq!(parts.sizes().iter().sum::<usize>(), t.len());
+
+    let mut rng = Lcg(17);
+    let mut ties = 0;
+    let shapes = [v.clone(), deform(&v, 0.7), deform(&v, 2.9)];
+    for (i, shape) in shapes.iter().enumerate() {
+        if i > 0 {
+            split.set_vertices(shape).unwrap();
+            whole.set_vertices(shape).unwrap();
+            reference.set_vertices(shape);
+        }
+        let points = probes(&split, &mut rng);
+        ties += assert_same_answers(
+            &split,
+            &whole,
+            &reference,
+            &points,
+            &mut rng,
+            &format!("shape {i}"),
+        );
+    }
+    // Half way between the last two shapes, as a substep puts it.
+    for c in [&mut split, &mut whole] {
+        c.commit_frame();
+        c.set_vertices(&shapes[1]).unwrap();
+        c.enter_substep(0.5, &Pose::IDENTITY, true);
+    }
+    let halfway: Vec<Vec3> = shapes[2]
+        .iter()
+        .zip(&shapes[1])
+        .map(|(a, b)| a.lerp(*b, 0.5))
+        .collect();
+    reference.set_vertices(&halfway);
+    let points = probes(&split, &mut rng);
+    ties += assert_same_answers(&split, &whole, &reference, &points, &mut rng, "substep");
+    assert!(ties > 100, "only {ties} exact ties exercised");
+
+    // Cached answers: patches hold mesh triangle ids, certificates hold as in one part.
+    split.enter_substep(1.0, &Pose::IDENTITY, true);
+    whole.enter_substep(1.0, &Pose::IDENTITY, true);
+    let mut points = probes(&split, &mut rng);
+    let mut slots = vec![(Slot::NEW, Slot::NEW); points.len()];
+    let mut certified = 0;
+    for pass in 0..8 {
+        let step = 0.0005 * 0.7f32.powi(pass);
+        for (k, (p, (a, b))) in points.iter_mut().zip(&mut slots).enumerate() {
+            *p += rng.point(step);
+            let got = a.project(&split, *p, split.travel_m(), 0.004);
+            let want = b.project(&whole, *p, whole.travel_m(), 0.004);
+            assert_eq!(bits(&got.0), bits(&want.0), "pass {pass} probe {k}");
+            assert_eq!(got.1, want.1, "pass {pass} probe {k}");
+            certified += usize::from(got.1 == Answer::Certified);
+        }
+    }
+    assert!(certified > points.len(), "{certified} certified answers");
+}
+
+/// Refitting parts on one rayon thread or two gives the same parts, bit for bit, and so the
+/// same answers.
+#[test]
+fn refit_is_the_same_on_one_and_two_threads() {
+    let (v, t) = muscle(48, 80);
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let two = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    let base = ColliderMesh::from_mesh_in_parts(v.clone(), t, 1000).unwrap();
+    assert!(mesh(&base).parts.len() >= 4);
+    let (mut a, mut b) = (base.clone(), base);
+    for (pool, c) in [(&one, &mut a), (&two, &mut b)] {
+        pool.install(|| {
+            c.set_vertices(&deform(&v, 1.3)).unwrap();
+            c.commit_frame();
+            c.set_vertices(&deform(&v, 2.1)).unwrap();
+            c.enter_substep(0.25, &Pose::IDENTITY, true);
+        });
+    }
+    assert_eq!(
+        mesh(&a).parts.fingerprint(),
+        mesh(&b).parts.fingerprint(),
+        "parts"
+    );
+    assert_eq!(aabb_bits(a.local_aabb()), aabb_bits(b.local_aabb()));
+    assert_eq!(a.travel_m().to_bits(), b.travel_m().to_bits());
+    let mut rng = Lcg(3);
+    for p in probes(&a, &mut rng) {
+        assert_eq!(
+            bits(&a.project_local(p, NONE)),
+            bits(&b.project_local(p, NONE))
+        );
+    }
+}
+
+/// The part rule: the bench's 50k-triangle muscle is refitted in parts of at most
+/// [`parts::PART_TRIANGLES`] (more than one), a small mesh in one; `parry_mesh` is the whole
+/// mesh in its current shape either way.
+#[test]
+fn part_rule_and_whole_parry_mesh() {
+    let (v, t) = muscle(126, 200);
+    assert_eq!(t.len(), 50_000);
+    let mut big = ColliderMesh::from_mesh(v.clone(), t.clone()).unwrap();
+    let sizes = mesh(&big).parts.sizes();
+    assert!(sizes.len() >= 2, "{sizes:?}");
+    assert!(
+        sizes.iter().all(|&s| s <= parts::PART_TRIANGLES),
+        "{sizes:?}"
+    );
+    assert_eq!(sizes.iter().sum::<usize>(), t.len());
+    let shape = deform(&v, 0.4);
+    big.set_vertices(&shape).unwrap();
+    let parry = big.parry_mesh().unwrap();
+    assert_eq!(parry.vertices(), &shape[..]);
+    assert_eq!(parry.indices(), &t[..]);
+    let (v, t) = muscle(24, 36);
+    let small = ColliderMesh::from_mesh(v, t).unwrap();
+    assert_eq!(mesh(&small).parts.len(), 1);
+}
+
+/// Bad input to a split mesh's refresh: a typed error naming the first non-finite vertex, or
+/// the wrong length, and the collider left exactly as it was.
+#[test]
+fn split_refresh_rejects_bad_vertices_unchanged() {
+    let (v, t) = muscle(40, 64);
+    let mut c = ColliderMesh::from_mesh_in_parts(v.clone(), t, 500).unwrap();
+    assert!(mesh(&c).parts.len() > 1);
+    c.set_vertices(&deform(&v, 0.5)).unwrap();
+    let before = (
+        mesh(&c).parts.fingerprint(),
+        c.travel_m(),
+        c.project_local(Vec3::X, NONE),
+    );
+    let mut bad = deform(&v, 0.9);
+    bad[1234].y = f32::NAN;
+    bad[2345].x = f32::INFINITY;
+    match c.set_vertices(&bad) {
+        Err(CollisionError::NonFinite { index, .. }) => assert_eq!(index, 1234),
+        other => panic!("expected NonFinite, got {other:?}"),
+    }
+    match c.set_vertices(&bad[..100]) {
+        Err(CollisionError::Length {
+            given, expected, ..
+        }) => assert_eq!((given, expected), (100, v.len())),
+        other => panic!("expected Length, got {other:?}"),
+    }
+    let after = (
+        mesh(&c).parts.fingerprint(),
+        c.travel_m(),
+        c.project_local(Vec3::X, NONE),
+    );
+    assert_eq!(before.0, after.0);
+    assert_eq!(before.1.to_bits(), after.1.to_bits());
+    assert_eq!(bits(&before.2), bits(&after.2));
+    assert_eq!(mesh(&c).current, deform(&v, 0.5));
+}
