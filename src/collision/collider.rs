@@ -849,7 +849,7 @@ impl MeshShape {
         }
         .unwrap_or(f32::INFINITY);
         if best.0 >= others - slack_m {
-            for k in 0..len {
+            for (k, l) in lean.iter_mut().enumerate().take(len) {
                 // Sorted by their distance when built: no later triangle can come closer.
                 if patch.dist[k] - slack_m > best.0 {
                     break;
@@ -857,9 +857,9 @@ impl MeshShape {
                 if k == b {
                     continue;
                 }
-                lean[k] = self.triangle_distance(patch.tris[k], p);
-                if lean[k] < best.0 {
-                    best = (lean[k], k);
+                *l = self.triangle_distance(patch.tris[k], p);
+                if *l < best.0 {
+                    best = (*l, k);
                 }
             }
         }
