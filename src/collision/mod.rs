@@ -1062,20 +1062,18 @@ impl SkinCollision {
         total
     }
 
-    /// Makes `rank` the inverse of `order` (rebuilt only when the order changed); `false` when
-    /// `order` is not a permutation of the vertices.
+    /// Makes `rank` the inverse of a new `order`; `false` when `order` is not a permutation
+    /// of the vertices.
     fn rank_for(&mut self, order: &[u32]) -> bool {
-        if self.rank_of != order {
-            self.rank_of.clear();
-            self.rank = vec![u32::MAX; order.len()];
-            for (i, &o) in order.iter().enumerate() {
-                match self.rank.get_mut(o as usize) {
-                    Some(r) if *r == u32::MAX => *r = i as u32,
-                    _ => return false,
-                }
+        self.rank_of.clear();
+        self.rank = vec![u32::MAX; order.len()];
+        for (i, &o) in order.iter().enumerate() {
+            match self.rank.get_mut(o as usize) {
+                Some(r) if *r == u32::MAX => *r = i as u32,
+                _ => return false,
             }
-            self.rank_of = order.to_vec();
         }
+        self.rank_of = order.to_vec();
         true
     }
 }
@@ -1091,13 +1089,15 @@ impl Projection for SkinCollision {
             self.diagnostics.length_mismatch = true;
             return false;
         }
+        // One comparison of the order per pass (an O(n) read; the solver's order rarely
+        // changes).
         if self.rank_of != order {
             // The last positions held in the old order go back to the caller's order first.
             self.leave_view();
-        }
-        if !self.rank_for(order) {
-            self.diagnostics.length_mismatch = true;
-            return false;
+            if !self.rank_for(order) {
+                self.diagnostics.length_mismatch = true;
+                return false;
+            }
         }
         let Some((done, mut touching)) = self.project_pass(x) else {
             return false;
