@@ -476,12 +476,12 @@ impl Sell {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     /// CSR half-springs of `edges` (each listed at both ends, sorted by the other end), with
     /// stiffness `k(edge)` and rest length `rest(edge)`.
-    fn csr(
+    pub(in crate::solver) fn csr(
         n: usize,
         edges: &[[u32; 2]],
         k: impl Fn(usize) -> f32,

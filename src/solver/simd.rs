@@ -1765,25 +1765,13 @@ mod tests {
         for (i, &o) in order.iter().enumerate() {
             rank[o as usize] = i as u32;
         }
-        let mut lists = vec![Vec::new(); order.len()];
-        for (e, &[a, b]) in edges.iter().enumerate() {
-            let (a, b) = (rank[a as usize], rank[b as usize]);
-            for (from, to) in [(a, b), (b, a)] {
-                lists[from as usize].push(crate::solver::Spring {
-                    other: to,
-                    k: k[e],
-                    rest: rest[e],
-                });
-            }
-        }
-        let mut offsets = vec![0u32];
-        let mut springs = Vec::new();
-        for mut list in lists {
-            list.sort_by_key(|s| s.other);
-            springs.extend(list);
-            offsets.push(springs.len() as u32);
-        }
-        assert_eq!(system.csr(), (offsets, springs));
+        let internal: Vec<[u32; 2]> = edges
+            .iter()
+            .map(|&[a, b]| [rank[a as usize], rank[b as usize]])
+            .collect();
+        let expected =
+            crate::solver::sell::tests::csr(order.len(), &internal, |e| k[e], |e| rest[e]);
+        assert_eq!(system.csr(), expected);
     }
 
     /// The plain per-vertex loop over CSR springs the kernels must reproduce bit for bit.
