@@ -988,16 +988,24 @@ fn a_projection_order_that_is_not_a_permutation_is_refused_untouched() {
     assert_eq!(&x[1..], &inside[1..]);
 }
 
+/// Contact of a 1 cm thick skin.
+const ONE_CM: ContactConfig = ContactConfig {
+    thickness_m: 0.01,
+    ..ContactConfig::DEFAULT
+};
+
+/// A one-vertex skin of 1 cm thickness and a ball of radius 0.1 at the origin.
+fn one_vertex_by_a_small_ball() -> (SkinCollision, ColliderId) {
+    let mut skin = SkinCollision::new(1, ONE_CM).unwrap();
+    let id = skin.add_collider(ColliderMesh::ball(0.1).unwrap());
+    (skin, id)
+}
+
 #[test]
 fn a_collider_replaced_in_place_is_seen_by_the_next_pass() {
     // A vertex far from a small ball is skipped by its cached bounds; replacing the ball with a
     // big one through `collider_mut` (its travel restarts) must not let the stale bounds hide it.
-    let config = ContactConfig {
-        thickness_m: 0.01,
-        ..ContactConfig::DEFAULT
-    };
-    let mut skin = SkinCollision::new(1, config).unwrap();
-    let id = skin.add_collider(ColliderMesh::ball(0.1).unwrap());
+    let (mut skin, id) = one_vertex_by_a_small_ball();
     let order = [0u32];
     let mut x = vec![Vec3::new(0.0, 0.0, 0.5)];
     for _ in 0..3 {
@@ -1013,12 +1021,7 @@ fn a_collider_replaced_in_place_is_seen_by_the_next_frame_plan() {
     // The plan skips pairs on cached distance bounds, which are measured against each
     // collider's travel: a replacement whose travel restarted below the old one's must not
     // inherit them. The vertex then needs substeps, as for a skin that never saw the old ball.
-    let config = ContactConfig {
-        thickness_m: 0.01,
-        ..ContactConfig::DEFAULT
-    };
-    let mut skin = SkinCollision::new(1, config).unwrap();
-    let id = skin.add_collider(ColliderMesh::ball(0.1).unwrap());
+    let (mut skin, id) = one_vertex_by_a_small_ball();
     let mut x = vec![Vec3::new(0.0, 0.0, 0.5)];
     // The old ball wanders far to the side (a long travel) and comes back.
     for k in 0..20 {
@@ -1036,7 +1039,8 @@ fn a_collider_replaced_in_place_is_seen_by_the_next_frame_plan() {
     *skin.collider_mut(id).unwrap() = moved(ColliderMesh::ball(0.1).unwrap());
     skin.clear_frame_state();
     let plan = skin.begin_frame(&mut x.clone()).unwrap();
-    let mut fresh = SkinCollision::new(1, config).unwrap();
+    // A skin that never saw the old ball: the moved one added afresh.
+    let mut fresh = SkinCollision::new(1, ONE_CM).unwrap();
     fresh.add_collider(moved(ColliderMesh::ball(0.1).unwrap()));
     let expected = fresh.begin_frame(&mut x.clone()).unwrap();
     assert!(expected.substeps > 1, "{expected:?}");
