@@ -652,7 +652,7 @@ impl SpringSystem {
                 1.0
             };
             // The force gather at the trial point `x + a d` overwrites `r` (reading the old
-            // force for the Polak-Ribiere product first); a rejected trial restores it.
+            // force for the product `Σ w r·r_old` first); a rejected trial restores it.
             let mut accepted = None;
             for attempt in 0..30 {
                 if attempt > 0 {
@@ -724,11 +724,24 @@ impl SpringSystem {
                 history.push(energy);
             }
             r_norm = (sums.rr + chopped_rr).sqrt();
-            // Polak-Ribiere+, preconditioned; restarted after a proportioning step.
+            // Hestenes-Stiefel, preconditioned and capped by Fletcher-Reeves:
+            // `β = max(0, min(Σ w r·(r − r_old) / d·(r_old − r), Σ w r·r / Σ w r_old·r_old))`,
+            // restarted after a proportioning step. Its denominator, the change of the slope
+            // along `d` over the step, keeps the new direction conjugate to the old one over
+            // that step whatever the step length; Polak-Ribiere's (`Σ w r_old·r_old`) equals it
+            // only after an exact line search, which the Gauss-Newton step is not where
+            // compressed springs buckle (see the module documentation).
             let beta = if after_proportioning || hold_restart || rz <= 0.0 {
                 0.0
             } else {
-                ((sums.rzr - rz_old) / rz).max(0.0)
+                let slope_change = slope - dot(&r, &d);
+                if slope_change > 0.0 {
+                    ((sums.rzr - rz_old) / slope_change)
+                        .min(sums.rzr / rz)
+                        .max(0.0)
+                } else {
+                    0.0
+                }
             };
             rz = sums.rzr;
             after_proportioning = proportioning;

@@ -137,6 +137,127 @@ fn chain_under_load_matches_series_springs() {
 }
 
 #[test]
+fn chain_along_its_axis_takes_the_iterations_of_linear_pcg() {
+    // A chain along x, anchored and loaded along x, is an exactly quadratic problem while its
+    // vertices keep their order: each spring's energy is ½ k (x_{i+1} − x_i − L)², each
+    // anchor's ½ k_a (x_i − t_i)², and the Gauss-Newton curvature along x is exact, so every
+    // step is an exact line search. The nonlinear conjugate gradients must then take the
+    // iterations of linear Jacobi-preconditioned CG, computed here independently in f64.
+    // Directions that lost their conjugacy (steepest descent needs several times more) or a
+    // wrong β would not.
+    let n = 30;
+    let rest_len = 0.01f32;
+    let rest: Vec<Vec3> = (0..n)
+        .map(|i| Vec3::new(i as f32 * rest_len, 0.0, 0.0))
+        .collect();
+    let edges: Vec<[u32; 2]> = (0..n as u32 - 1).map(|i| [i, i + 1]).collect();
+    let k: Vec<f32> = (0..n - 1)
+        .map(|i| 50.0 + ((i * 37) % 29) as f32 * 15.0)
+        .collect();
+    let k_anchor = 100.0f32;
+    let anchors: Vec<VertexAnchor> = (0..n)
+        .map(|i| VertexAnchor {
+            target: Vec3::new(i as f32 * rest_len * 1.2, 0.0, 0.0),
+            normal: Vec3::X,
+            k_normal: k_anchor,
+            k_tangent: k_anchor,
+        })
+        .collect();
+    let f: Vec<Vec3> = (0..n)
+        .map(|i| Vec3::new(0.1 * ((i * 13) % 7) as f32 - 0.3, 0.0, 0.0))
+        .collect();
+    let mut pinned = vec![false; n];
+    pinned[0] = true;
+    let s = SpringSystem::new(&rest, &edges, &k, &vec![rest_len; n - 1]).unwrap();
+    // Loads of ~0.2 N keep the f32 force noise (~2e-4 N) well under the threshold (~1e-3 N).
+    let tolerance = 1e-3;
+    // Start at the anchors' targets (springs stretched by 20 %).
+    let mut x: Vec<Vec3> = anchors.iter().map(|a| a.target).collect();
+    let report = s
+        .relax(
+            &mut x,
+            &Loads {
+                forces: Some(&f),
+                pinned: Some(&pinned),
+                anchors: Some(&anchors),
+            },
+            &RelaxConfig {
+                tolerance,
+                max_iterations: 1000,
+                stagnation_window: 0,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    assert!(report.converged(), "{report:?}");
+    assert!(
+        x.windows(2).all(|p| p[1].x > p[0].x),
+        "the chain kept its order: {x:?}"
+    );
+
+    // Linear PCG in f64 on the free vertices 1..n from the same start.
+    let (kk, ka) = (
+        k.iter().map(|&k| f64::from(k)).collect::<Vec<_>>(),
+        f64::from(k_anchor),
+    );
+    let xs: Vec<f64> = anchors.iter().map(|a| f64::from(a.target.x)).collect();
+    let m = n - 1; // free unknowns: vertex i + 1
+    // (A u)_i for the free vertices, u[i] the displacement of vertex i + 1 (vertex 0 pinned).
+    let apply = |u: &[f64]| -> Vec<f64> {
+        (0..m)
+            .map(|i| {
+                let left = if i == 0 { 0.0 } else { u[i - 1] };
+                let mut v = ka * u[i] + kk[i] * (u[i] - left);
+                if i + 1 < m {
+                    v -= kk[i + 1] * (u[i + 1] - u[i]);
+                }
+                v
+            })
+            .collect()
+    };
+    // The net force at the start: springs, anchors and loads.
+    let mut r: Vec<f64> = (1..n)
+        .map(|v| {
+            let mut r = f64::from(f[v].x) - ka * (xs[v] - f64::from(anchors[v].target.x));
+            r -= kk[v - 1] * (xs[v] - xs[v - 1] - f64::from(rest_len));
+            if v + 1 < n {
+                r += kk[v] * (xs[v + 1] - xs[v] - f64::from(rest_len));
+            }
+            r
+        })
+        .collect();
+    let w: Vec<f64> = (0..m)
+        .map(|i| 1.0 / (ka + kk[i] + kk.get(i + 1).copied().unwrap_or(0.0)))
+        .collect();
+    let norm = |v: &[f64]| v.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let dotp = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(a, b)| a * b).sum::<f64>();
+    let scale = norm(&f[1..].iter().map(|f| f64::from(f.x)).collect::<Vec<_>>());
+    let mut z: Vec<f64> = r.iter().zip(&w).map(|(r, w)| r * w).collect();
+    let mut d = z.clone();
+    let mut rz = dotp(&r, &z);
+    let mut reference = 0;
+    while norm(&r) > f64::from(tolerance) * scale {
+        let hd = apply(&d);
+        let a = rz / dotp(&d, &hd);
+        for i in 0..m {
+            r[i] -= a * hd[i];
+        }
+        z = r.iter().zip(&w).map(|(r, w)| r * w).collect();
+        let rz_new = dotp(&r, &z);
+        for i in 0..m {
+            d[i] = z[i] + rz_new / rz * d[i];
+        }
+        rz = rz_new;
+        reference += 1;
+    }
+    assert!(
+        (reference - 1..=reference + 1).contains(&(report.iterations as i32)),
+        "{} iterations, linear PCG {reference}",
+        report.iterations
+    );
+}
+
+#[test]
 fn result_does_not_depend_on_input_vertex_order() {
     let mesh = sheet(10);
     let n = mesh.positions().len() as u32;
