@@ -1070,8 +1070,9 @@ unsafe fn own_vec3<S: Lanes>(l: S, sell: &Sell, s: usize, own: S::I, v: &[Vec3])
     }
 }
 
-/// Net force (before pinning) and energy of the vertices of slice `s`, at `x` (`x + a d` with
-/// `STEP`).
+/// Net force (before pinning) and twice the energy of the vertices of slice `s`, at `x`
+/// (`x + a d` with `STEP`). Twice: every term without its factor ½, halved once per chunk
+/// (scaling by 2 is exact, so the halved sum has the bits of the sum of the halved terms).
 ///
 /// # Safety
 /// All arrays of `f` have `f.sell.n` entries and every spring index is below it.
@@ -1108,7 +1109,6 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
     let zero = l.splat(0.0);
     let (one, half, tiny) = (l.splat(1.0), l.splat(0.5), l.splat(f32::MIN_POSITIVE));
-    let half64 = l.dsplat(0.5);
     let (mut fx, mut fy, mut fz) = (zero, zero, zero);
     let mut energy = l.dsplat(0.0);
     // The force of one spring of every lane (entry `e`), with what the energy needs (a macro:
@@ -1185,14 +1185,12 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         // Masks applied in f32 (cheaper than on the f64 halves), with the same results: a
         // degenerate spring gets no Newton step (`linear + 0`), and a spring to a lower vertex
         // (negative stiffness) or padding adds `½·0·st² = +0` to an energy that starts at +0.
-        // `½ k` is exact in f32.
         let len64 = l.widen(len);
         let linear = l.dsub(len64, l.widen(rest));
         let half_inv = l.keep(ok, l.mul(half, inv));
         let newton = l.dmul(l.dsub(l2_64, l.dmul(len64, len64)), l.widen(half_inv));
         let stretch = l.dadd(linear, newton);
-        let half_k = l.widen(l.mul(half, l.max(k, zero)));
-        let term = l.dmul(l.dmul(half_k, stretch), stretch);
+        let term = l.dmul(l.dmul(l.widen(l.max(k, zero)), stretch), stretch);
         energy = l.dadd(energy, term);
     }
     if let Some(a) = f.anchors {
@@ -1236,8 +1234,8 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
             l.dsub(dz, l.dmul(nz, dn)),
         );
         let lt = l.dadd(l.dadd(l.dmul(px, px), l.dmul(py, py)), l.dmul(pz, pz));
-        let normal = l.dmul(l.dmul(l.dmul(half64, l.widen(kn)), dn), dn);
-        let tangent = l.dmul(l.dmul(half64, l.widen(kt)), lt);
+        let normal = l.dmul(l.dmul(l.widen(kn), dn), dn);
+        let tangent = l.dmul(l.widen(kt), lt);
         energy = l.dadd(energy, l.dadd(normal, tangent));
     }
     if let Some(ext) = f.external {
@@ -1250,7 +1248,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
             l.dadd(l.dmul(l.widen(gx), yx64), l.dmul(l.widen(gy), yy64)),
             l.dmul(l.widen(gz), yz64),
         );
-        energy = l.dsub(energy, work);
+        energy = l.dsub(energy, l.dadd(work, work));
     }
     ([fx, fy, fz], energy)
 }
@@ -1276,7 +1274,8 @@ fn force_chunk<S: Lanes, const STEP: bool>(
             && first.is_multiple_of(LANES)
             && first + r.len() <= n
     );
-    // Per-lane sums (lane = vertex mod 8), added across lanes in order at the end.
+    // Per-lane sums (lane = vertex mod 8), added across lanes in order at the end (the
+    // energy's twice).
     let zero = l.splat(0.0);
     let (mut energy_acc, mut rr, mut rzr, mut rz_old) =
         (l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0));
@@ -1341,7 +1340,7 @@ fn force_chunk<S: Lanes, const STEP: bool>(
     }
     let sum = |d: S::D| l.dstore(d).iter().fold(0.0f64, |a, b| a + b);
     Sums {
-        energy: sum(energy_acc),
+        energy: 0.5 * sum(energy_acc),
         rr: sum(rr),
         rzr: sum(rzr),
         rz_old: sum(rz_old),
