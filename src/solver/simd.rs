@@ -1108,7 +1108,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     };
     let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
     let zero = l.splat(0.0);
-    let (one, half, tiny) = (l.splat(1.0), l.splat(0.5), l.splat(f32::MIN_POSITIVE));
+    let (one, half) = (l.splat(1.0), l.splat(0.5));
     let (mut fx, mut fy, mut fz) = (zero, zero, zero);
     let mut energy = l.dsplat(0.0);
     // The force of one spring of every lane (entry `e`), with what the energy needs (a macro:
@@ -1129,9 +1129,12 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
             };
             let (ex, ey, ez) = (l.sub(z[0], yx), l.sub(z[1], yy), l.sub(z[2], yz));
             let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
+            // `len > MIN_POSITIVE` exactly when `l2 > 0`: a positive f32 `l2` is at least the
+            // smallest subnormal, whose root is ~3.7e-23 (tested against zero, the test needs
+            // no constant of its own nor waits for the root).
+            let ok = l.gt(l2, zero);
             let len = l.sqrt(l2);
             let inv = l.div(one, len);
-            let ok = l.gt(len, tiny);
             // A degenerate spring (no direction) adds nothing: its coefficient is zeroed, and
             // `f + e·0` is `f` bit for bit (`e` is finite there, and a sum that starts at +0 is
             // never −0), as if the spring were skipped.
