@@ -113,13 +113,8 @@ impl Lanes for Avx512 {
     }
     #[inline(always)]
     unsafe fn vec3s(self, p: *const f32, n: usize, rows: &super::Rows, j: Self::I) -> [Self::F; 3] {
-        if rows.may_name_last {
-            // SAFETY: the caller's contract.
-            return unsafe { A.vec3s(p, n, rows, j) };
-        }
-        // SAFETY: the caller guarantees every index is below n; near slices never name the
-        // last vertex, so each 16-byte row is readable.
-        unsafe { transpose(quads(p.add(3 * rows.shift), rows)) }
+        // SAFETY: the caller's contract.
+        unsafe { A.vec3s(p, n, rows, j) }
     }
     #[inline(always)]
     unsafe fn vec3s_step(
@@ -131,25 +126,8 @@ impl Lanes for Avx512 {
         rows: &super::Rows,
         j: Self::I,
     ) -> [Self::F; 3] {
-        if rows.may_name_last {
-            // SAFETY: the caller's contract.
-            return unsafe { A.vec3s_step(p, dp, a, n, rows, j) };
-        }
-        // SAFETY: as in `vec3s`. The step `x + d·a` on the rows as read (16 floats per
-        // operation; the fourth float of each row, the next vector's x, is stepped too and
-        // then dropped), then one transpose.
-        unsafe {
-            let (x, d) = (
-                quads(p.add(3 * rows.shift), rows),
-                quads(dp.add(3 * rows.shift), rows),
-            );
-            let a = _mm512_castps256_ps512(a);
-            let a = _mm512_shuffle_f32x4::<0>(a, a);
-            transpose([
-                _mm512_add_ps(x[0], _mm512_mul_ps(d[0], a)),
-                _mm512_add_ps(x[1], _mm512_mul_ps(d[1], a)),
-            ])
-        }
+        // SAFETY: the caller's contract.
+        unsafe { A.vec3s_step(p, dp, a, n, rows, j) }
     }
     #[inline(always)]
     unsafe fn vec3s_pair(
@@ -160,17 +138,8 @@ impl Lanes for Avx512 {
         rows: &super::Rows,
         j: Self::I,
     ) -> ([Self::F; 3], [Self::F; 3]) {
-        if rows.may_name_last {
-            // SAFETY: the caller's contract.
-            return unsafe { A.vec3s_pair(p, dp, n, rows, j) };
-        }
-        // SAFETY: as in `vec3s`.
-        unsafe {
-            (
-                transpose(quads(p.add(3 * rows.shift), rows)),
-                transpose(quads(dp.add(3 * rows.shift), rows)),
-            )
-        }
+        // SAFETY: the caller's contract.
+        unsafe { A.vec3s_pair(p, dp, n, rows, j) }
     }
     #[inline(always)]
     unsafe fn store3(self, p: *mut f32, v: [Self::F; 3]) {
@@ -277,56 +246,5 @@ impl Lanes for Avx512 {
         // SAFETY: eight doubles of room.
         unsafe { _mm512_storeu_pd(out.as_mut_ptr(), a) };
         out
-    }
-}
-
-/// The 16-byte rows of the eight lanes at `p` (x, y, z and the next vector's x), four lanes
-/// per register in lane order.
-///
-/// # Safety
-/// The 16 bytes at every `p + rows.row(l)` must be readable.
-#[inline(always)]
-unsafe fn quads(p: *const f32, rows: &super::Rows) -> [__m512; 2] {
-    // SAFETY: the caller's contract.
-    unsafe {
-        let row = |l: usize| _mm_loadu_ps(p.offset(rows.row(l)));
-        let four = |l: usize| {
-            let v = _mm512_castps128_ps512(row(l));
-            let v = _mm512_insertf32x4::<1>(v, row(l + 1));
-            let v = _mm512_insertf32x4::<2>(v, row(l + 2));
-            _mm512_insertf32x4::<3>(v, row(l + 3))
-        };
-        [four(0), four(4)]
-    }
-}
-
-/// The x, y and z lanes of eight rows as [`quads`] holds them (lane `l`'s component `c` at
-/// float `4 l + c` of the pair): one two-register permutation per component.
-#[inline(always)]
-fn transpose(q: [__m512; 2]) -> [__m256; 3] {
-    // SAFETY: AVX-512F is enabled wherever this is inlined (AVX-512 lanes only).
-    unsafe {
-        let pick = |c: i32| {
-            let idx = _mm512_setr_epi32(
-                c,
-                4 + c,
-                8 + c,
-                12 + c,
-                16 + c,
-                20 + c,
-                24 + c,
-                28 + c,
-                0,
-                0,
-                0,
-                0,
-                0,
-                0,
-                0,
-                0,
-            );
-            _mm512_castps512_ps256(_mm512_permutex2var_ps(q[0], idx, q[1]))
-        };
-        [pick(0), pick(1), pick(2)]
     }
 }
