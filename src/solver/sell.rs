@@ -24,12 +24,12 @@
 //! vertices (and padding). The upper slots keep a `(k, rest)` pair per entry in
 //! [`Sell::kr`] (a lane's spring to a lower vertex there keeps a copy of its pair with the
 //! stiffness negated, so that the kernels tell the springs whose energy and curvature they
-//! take by its sign; padding zeros); the lower slots keep none: each of their entries names the pair of the same spring
-//! at its other end, a lower vertex whose upper slots hold it (an earlier slice, or this one),
-//! as a 16-bit distance back from the end of this slice's pairs, or as a full 32-bit pair index
-//! in the few slices with a partner farther back ([`Sell::far_refs`]). An upper entry takes
-//! 2 + 8 bytes, a lower one 2 + 2 (instead of 2 + 8 + 8 for every half-spring before): on the
-//! bench's skin tubes (degree 6; per vertex about 3.7 upper and 2.3 lower slots) 47-50 bytes of
+//! take by its sign; padding zeros); the lower slots keep none: each of their entries names
+//! the pair of the same spring at its other end, a lower vertex whose upper slots hold it (an
+//! earlier slice, or this one), as a 16-bit distance back from the end of this slice's pairs,
+//! or as a full 32-bit pair index in the few slices with a partner farther back
+//! ([`Sell::far_refs`]). An upper entry takes 2 + 8 bytes, a lower one 2 + 2 (instead of
+//! 2 + 8 + 8 for every half-spring before): on the bench's skin tubes (degree 6; per vertex about 3.7 upper and 2.3 lower slots) 47-50 bytes of
 //! springs per vertex with the per-slice offsets, instead of 61-63.
 //!
 //! The pairs of one upper slot (eight lanes, 64 bytes) are stored in the lane order

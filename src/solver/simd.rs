@@ -1187,7 +1187,8 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         );
         // Masks applied in f32 (cheaper than on the f64 halves), with the same results: a
         // degenerate spring gets no Newton step (`linear + 0`), and a spring to a lower vertex
-        // (negative stiffness) or padding adds `½·0·st² = +0` to an energy that starts at +0.
+        // (negative stiffness) or padding adds `0·st² = +0` to an energy that starts at +0.
+        // Twice the energy: `k st²`.
         let len64 = l.widen(len);
         let linear = l.dsub(len64, l.widen(rest));
         let half_inv = l.keep(ok, l.mul(half, inv));
