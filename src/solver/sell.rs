@@ -29,8 +29,9 @@
 //! earlier slice, or this one), as a 16-bit distance back from the end of this slice's pairs,
 //! or as a full 32-bit pair index in the few slices with a partner farther back
 //! ([`Sell::far_refs`]). An upper entry takes 2 + 8 bytes, a lower one 2 + 2 (instead of
-//! 2 + 8 + 8 for every half-spring before): on the bench's skin tubes (degree 6; per vertex about 3.7 upper and 2.3 lower slots) 47-50 bytes of
-//! springs per vertex with the per-slice offsets, instead of 61-63.
+//! 2 + 8 + 8 for every half-spring before): on the bench's skin tubes (degree 6; per vertex
+//! about 3.7 upper and 2.3 lower slots) 47-50 bytes of springs per vertex with the per-slice
+//! offsets, instead of 61-63.
 //!
 //! The pairs of one upper slot (eight lanes, 64 bytes) are stored in the lane order
 //! [`PAIR_LANES`], so that two 32-byte loads and two in-lane shuffles give the stiffness and the
