@@ -22,14 +22,16 @@
 //! entries split in two: the *upper* slots, from the first slot in which some lane has a spring
 //! to a higher vertex, and the *lower* slots before them, which hold only springs to lower
 //! vertices (and padding). The upper slots keep a `(k, rest)` pair per entry in
-//! [`Sell::kr`] (a lane's spring to a lower vertex there keeps a copy of its pair, padding
-//! zeros); the lower slots keep none: each of their entries names the pair of the same spring
-//! at its other end, a lower vertex whose upper slots hold it (an earlier slice, or this one),
-//! as a 16-bit distance back from the end of this slice's pairs, or as a full 32-bit pair index
-//! in the few slices with a partner farther back ([`Sell::far_refs`]). An upper entry takes
-//! 2 + 8 bytes, a lower one 2 + 2 (instead of 2 + 8 + 8 for every half-spring before): on the
-//! bench's skin tubes (degree 6; per vertex about 3.7 upper and 2.3 lower slots) 47-50 bytes of
-//! springs per vertex with the per-slice offsets, instead of 61-63.
+//! [`Sell::kr`] (a lane's spring to a lower vertex there keeps a copy of its pair with the
+//! stiffness negated, so that the kernels tell the springs whose energy and curvature they
+//! take by its sign; padding zeros); the lower slots keep none: each of their entries names
+//! the pair of the same spring at its other end, a lower vertex whose upper slots hold it (an
+//! earlier slice, or this one), as a 16-bit distance back from the end of this slice's pairs,
+//! or as a full 32-bit pair index in the few slices with a partner farther back
+//! ([`Sell::far_refs`]). An upper entry takes 2 + 8 bytes, a lower one 2 + 2 (instead of
+//! 2 + 8 + 8 for every half-spring before): on the bench's skin tubes (degree 6; per vertex
+//! about 3.7 upper and 2.3 lower slots) 47-50 bytes of springs per vertex with the per-slice
+//! offsets, instead of 61-63.
 //!
 //! The pairs of one upper slot (eight lanes, 64 bytes) are stored in the lane order
 //! [`PAIR_LANES`], so that two 32-byte loads and two in-lane shuffles give the stiffness and the
@@ -119,7 +121,9 @@ pub(crate) struct Sell {
     /// vertex (0 in wide slices; times three in tripled slices).
     pub near: Vec<i16>,
     /// Stiffness (N/m) and rest length (m) of the upper entries, eight pairs per slot in the
-    /// lane order [`PAIR_LANES`] (zeros for padding).
+    /// lane order [`PAIR_LANES`] (zeros for padding). The stiffness is negated (`-0.0` for
+    /// zero) in the entries of springs to lower vertices, which only these copies hold: every
+    /// pair a lower entry names is that of a spring to a higher vertex, so positive.
     pub kr: Vec<[f32; 2]>,
     /// Per lower entry (the eight of a slot in the lane order [`PAIR_LANES`]): the pair of its
     /// spring, as `32 768 - (end - pair)` for `end` the end of the slice's pairs (unused in the
@@ -241,12 +245,14 @@ impl Sell {
             wide,
             far,
         };
-        // The upper entries' own pairs.
+        // The upper entries' own pairs, the stiffness negated for a spring to a lower vertex
+        // (its energy and curvature belong to the other end).
         for s in 0..slices {
             for e in sell.upper_entries(s) {
                 if let Some(sp) = springs.get(spring[e] as usize) {
                     let p = sell.own_pair(s, e);
-                    sell.kr[p] = [sp.k, sp.rest];
+                    let lower = (sp.other as usize) < s * LANES + e % LANES;
+                    sell.kr[p] = [if lower { -sp.k } else { sp.k }, sp.rest];
                 }
             }
         }
@@ -446,7 +452,7 @@ impl Sell {
                 let [k, rest] = self.kr[self.pair(s, e)];
                 Spring {
                     other: self.other(s, e),
-                    k,
+                    k: k.abs(),
                     rest,
                 }
             })
@@ -523,6 +529,14 @@ pub(super) mod tests {
                 // Lower entries hold springs to lower vertices (or padding) only.
                 assert!(upper.contains(&e) || j <= i, "slice {s} entry {e}");
                 assert!(sell.pair(s, e) < sell.kr.len(), "slice {s} entry {e}");
+                // The stiffness the kernels read is negative exactly for the copies an upper
+                // slot holds of springs to lower vertices (all stiffnesses here are positive),
+                // and the pairs the lower entries name are positive.
+                if j != i {
+                    let k = sell.kr[sell.pair(s, e)][0];
+                    let copy = upper.contains(&e) && j < i;
+                    assert_eq!(k.is_sign_negative(), copy, "slice {s} entry {e}");
+                }
             }
         }
     }

@@ -154,12 +154,12 @@ pub(crate) trait Lanes: Copy {
     fn neg(self, a: Self::F) -> Self::F;
     fn gt(self, a: Self::F, b: Self::F) -> Self::M;
     fn le(self, a: Self::F, b: Self::F) -> Self::M;
-    /// `a > b` per lane (indices below 2³¹).
-    fn gt_i(self, a: Self::I, b: Self::I) -> Self::M;
+    /// `|a|` per lane (the sign bit cleared).
+    fn abs(self, a: Self::F) -> Self::F;
     /// `m ? a : b` per lane.
     fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F;
     /// `m ? a : +0` per lane, for a mask `m` from a comparison ([`gt`](Self::gt),
-    /// [`le`](Self::le), [`gt_i`](Self::gt_i); not [`negative`](Self::negative)).
+    /// [`le`](Self::le); not [`negative`](Self::negative)).
     fn keep(self, m: Self::M, a: Self::F) -> Self::F;
     /// `base + l` in lane `l`.
     fn iota(self, base: u32) -> Self::I;
@@ -318,8 +318,8 @@ impl Lanes for Scalar {
         std::array::from_fn(|l| a[l] <= b[l])
     }
     #[inline(always)]
-    fn gt_i(self, a: Self::I, b: Self::I) -> Self::M {
-        std::array::from_fn(|l| (a[l] as i32) > (b[l] as i32))
+    fn abs(self, a: Self::F) -> Self::F {
+        a.map(f32::abs)
     }
     #[inline(always)]
     fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
@@ -736,8 +736,8 @@ mod avx2 {
             unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(a, b) }
         }
         #[inline(always)]
-        fn gt_i(self, a: Self::I, b: Self::I) -> Self::M {
-            unsafe { _mm256_castsi256_ps(_mm256_cmpgt_epi32(a, b)) }
+        fn abs(self, a: Self::F) -> Self::F {
+            unsafe { _mm256_andnot_ps(_mm256_set1_ps(-0.0), a) }
         }
         #[inline(always)]
         fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
@@ -915,11 +915,6 @@ fn assert_entries(sell: &Sell) {
 trait Ends: Copy {
     /// The other ends of entry `e` (of this slice) as lanes and as rows.
     fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows);
-    /// The lanes whose other end (`j` from [`at`](Self::at)) is above their own vertex `own`.
-    #[inline(always)]
-    fn upper<S: Lanes>(self, l: S, j: S::I, own: S::I) -> S::M {
-        l.gt_i(j, own)
-    }
 }
 
 /// A slice whose other ends are 16-bit offsets from its first vertex `base` (times three with
@@ -931,11 +926,6 @@ struct Near<'a, const TRIPLE: bool> {
 }
 
 impl<const TRIPLE: bool> Ends for Near<'_, TRIPLE> {
-    #[inline(always)]
-    fn upper<S: Lanes>(self, l: S, j: S::I, own: S::I) -> S::M {
-        // Tripled: `j` is `3 j` (below 2^29: vertex counts below 2^27 take these lanes).
-        l.gt_i(j, if TRIPLE { l.times3(own) } else { own })
-    }
     #[inline(always)]
     fn at<S: Lanes>(self, l: S, e: usize) -> (S::I, Rows) {
         // SAFETY: `e` is an entry of this slice (the caller's arrays checked).
@@ -1080,8 +1070,9 @@ unsafe fn own_vec3<S: Lanes>(l: S, sell: &Sell, s: usize, own: S::I, v: &[Vec3])
     }
 }
 
-/// Net force (before pinning) and energy of the vertices of slice `s`, at `x` (`x + a d` with
-/// `STEP`).
+/// Net force (before pinning) and twice the energy of the vertices of slice `s`, at `x`
+/// (`x + a d` with `STEP`). Twice: every term without its factor ½, halved once per chunk
+/// (scaling by 2 is exact, so the halved sum has the bits of the sum of the halved terms).
 ///
 /// # Safety
 /// All arrays of `f` have `f.sell.n` entries and every spring index is below it.
@@ -1117,8 +1108,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     };
     let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
     let zero = l.splat(0.0);
-    let (one, half, tiny) = (l.splat(1.0), l.splat(0.5), l.splat(f32::MIN_POSITIVE));
-    let half64 = l.dsplat(0.5);
+    let (one, half) = (l.splat(1.0), l.splat(0.5));
     let (mut fx, mut fy, mut fz) = (zero, zero, zero);
     let mut energy = l.dsplat(0.0);
     // The force of one spring of every lane (entry `e`), with what the energy needs (a macro:
@@ -1139,9 +1129,12 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
             };
             let (ex, ey, ez) = (l.sub(z[0], yx), l.sub(z[1], yy), l.sub(z[2], yz));
             let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
+            // `len > MIN_POSITIVE` exactly when `l2 > 0`: a positive f32 `l2` is at least the
+            // smallest subnormal, whose root is ~3.7e-23 (tested against zero, the test needs
+            // no constant of its own nor waits for the root).
+            let ok = l.gt(l2, zero);
             let len = l.sqrt(l2);
             let inv = l.div(one, len);
-            let ok = l.gt(len, tiny);
             // A degenerate spring (no direction) adds nothing: its coefficient is zeroed, and
             // `f + e·0` is `f` bit for bit (`e` is finite there, and a sum that starts at +0 is
             // never −0), as if the spring were skipped.
@@ -1178,8 +1171,9 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     }
     for e in upper.clone().step_by(LANES) {
         // SAFETY: the slot's eight pairs are in bounds (checked by the caller).
-        let pairs = unsafe { l.pairs(kr.add(2 * (parts.pairs + e - upper.start))) };
-        let (j, [zx, zy, zz], len, inv, ok, k, rest) = spring!(e, pairs);
+        let (k, rest) = unsafe { l.pairs(kr.add(2 * (parts.pairs + e - upper.start))) };
+        // A negative stiffness marks a spring to a lower vertex (see `Sell::kr`).
+        let (_, [zx, zy, zz], len, inv, ok, _, rest) = spring!(e, (l.abs(k), rest));
         // Energy in f64 from exact differences, each spring once (from its lower end): the
         // stretch `|e| − rest` with one Newton step on the f32 length.
         let (ex64, ey64, ez64) = (
@@ -1193,14 +1187,14 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         );
         // Masks applied in f32 (cheaper than on the f64 halves), with the same results: a
         // degenerate spring gets no Newton step (`linear + 0`), and a spring to a lower vertex
-        // or padding adds `½·0·st² = +0` to an energy that starts at +0.
+        // (negative stiffness) or padding adds `0·st² = +0` to an energy that starts at +0.
+        // Twice the energy: `k st²`.
         let len64 = l.widen(len);
         let linear = l.dsub(len64, l.widen(rest));
         let half_inv = l.keep(ok, l.mul(half, inv));
         let newton = l.dmul(l.dsub(l2_64, l.dmul(len64, len64)), l.widen(half_inv));
         let stretch = l.dadd(linear, newton);
-        let k_upper = l.keep(ends.upper(l, j, own), k);
-        let term = l.dmul(l.dmul(l.dmul(half64, l.widen(k_upper)), stretch), stretch);
+        let term = l.dmul(l.dmul(l.widen(l.max(k, zero)), stretch), stretch);
         energy = l.dadd(energy, term);
     }
     if let Some(a) = f.anchors {
@@ -1244,8 +1238,8 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
             l.dsub(dz, l.dmul(nz, dn)),
         );
         let lt = l.dadd(l.dadd(l.dmul(px, px), l.dmul(py, py)), l.dmul(pz, pz));
-        let normal = l.dmul(l.dmul(l.dmul(half64, l.widen(kn)), dn), dn);
-        let tangent = l.dmul(l.dmul(half64, l.widen(kt)), lt);
+        let normal = l.dmul(l.dmul(l.widen(kn), dn), dn);
+        let tangent = l.dmul(l.widen(kt), lt);
         energy = l.dadd(energy, l.dadd(normal, tangent));
     }
     if let Some(ext) = f.external {
@@ -1258,7 +1252,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
             l.dadd(l.dmul(l.widen(gx), yx64), l.dmul(l.widen(gy), yy64)),
             l.dmul(l.widen(gz), yz64),
         );
-        energy = l.dsub(energy, work);
+        energy = l.dsub(energy, l.dadd(work, work));
     }
     ([fx, fy, fz], energy)
 }
@@ -1284,7 +1278,8 @@ fn force_chunk<S: Lanes, const STEP: bool>(
             && first.is_multiple_of(LANES)
             && first + r.len() <= n
     );
-    // Per-lane sums (lane = vertex mod 8), added across lanes in order at the end.
+    // Per-lane sums (lane = vertex mod 8), added across lanes in order at the end (the
+    // energy's twice).
     let zero = l.splat(0.0);
     let (mut energy_acc, mut rr, mut rzr, mut rz_old) =
         (l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0));
@@ -1349,7 +1344,7 @@ fn force_chunk<S: Lanes, const STEP: bool>(
     }
     let sum = |d: S::D| l.dstore(d).iter().fold(0.0f64, |a, b| a + b);
     Sums {
-        energy: sum(energy_acc),
+        energy: 0.5 * sum(energy_acc),
         rr: sum(rr),
         rzr: sum(rzr),
         rz_old: sum(rz_old),
@@ -1576,9 +1571,12 @@ fn curvature_chunk<S: Lanes>(
             let along2 = l.mul(along, along);
             let transverse = l.max(l.sub(uu, along2), zero);
             let taut = l.max(l.sub(one, l.mul(rest, inv)), zero);
+            // A spring to a lower vertex (negative stiffness) or padding adds `+0` (every
+            // term is finite and `vertex` is never `-0`).
+            let k = l.max(k, zero);
             let term = l.mul(k, l.add(along2, l.mul(taut, transverse)));
             let term = l.select(l.le(l2, tiny2), l.mul(k, uu), term);
-            vertex = l.select(ends.upper(l, j, own), l.add(vertex, term), vertex);
+            vertex = l.add(vertex, term);
         }
             vertex
         });

@@ -200,8 +200,8 @@ impl Lanes for Avx512 {
         A.le(a, b)
     }
     #[inline(always)]
-    fn gt_i(self, a: Self::I, b: Self::I) -> Self::M {
-        A.gt_i(a, b)
+    fn abs(self, a: Self::F) -> Self::F {
+        A.abs(a)
     }
     #[inline(always)]
     fn select(self, m: Self::M, a: Self::F, b: Self::F) -> Self::F {
