@@ -60,7 +60,10 @@ fn test_of(r: &Reach, travel: f64) -> (Vec3, f32) {
 }
 
 /// One resolved vertex.
+#[derive(Clone, Copy)]
 struct Resolved {
+    /// Place among the pass's resolved vertices in the solver's order.
+    j: u32,
     /// Internal index.
     i: u32,
     /// Caller's index.
@@ -92,8 +95,8 @@ impl SkinCollision {
 
     /// A projection pass over `x` in the solver's order (`self.rank_of`, already checked to be
     /// a permutation), with the swept test: what it did, and the `(internal, caller's)` index
-    /// of every vertex touching a collider after it; `None` when there is nothing to collide
-    /// with.
+    /// of every vertex touching a collider after it, by increasing internal index; `None` when
+    /// there is nothing to collide with.
     pub(super) fn project_pass(&mut self, x: &mut [Vec3]) -> Option<(ChunkPass, Vec<(u32, u32)>)> {
         let nc = self.colliders.len();
         let n = x.len();
@@ -137,20 +140,33 @@ impl SkinCollision {
             })
             .collect();
         let mut counters = Counters::default();
+        // The failing vertices in the solver's order (`i` increasing), then grouped by the
+        // caller's chunk that owns their state: a stable counting sort (no comparisons), each
+        // entry keeping its place `j` in the solver's order.
         let mut listed: Vec<(u32, u32, Vec3)> = Vec::new();
         for (l, skipped) in per_chunk {
             counters.skipped_vertices += skipped;
             counters.skipped_bound += skipped * nc as u64;
             listed.extend(
                 l.into_iter()
-                    .map(|(i, last)| (self.rank_of[i as usize], i, last)),
+                    .map(|(i, last)| (i, self.rank_of[i as usize], last)),
             );
         }
-        // Resolved in the caller's order, each chunk of state by one task.
-        listed.sort_unstable_by_key(|&(o, _, _)| o);
-        let bounds: Vec<usize> = (0..=n.div_ceil(CHUNK))
-            .map(|c| listed.partition_point(|&(o, _, _)| (o as usize) < c * CHUNK))
-            .collect();
+        let chunks = n.div_ceil(CHUNK);
+        let mut bounds = vec![0usize; chunks + 1];
+        for &(_, o, _) in &listed {
+            bounds[o as usize / CHUNK + 1] += 1;
+        }
+        for c in 0..chunks {
+            bounds[c + 1] += bounds[c];
+        }
+        let mut fill = bounds.clone();
+        let mut grouped = vec![(0u32, 0u32, 0u32, Vec3::ZERO); listed.len()];
+        for (j, &(i, o, last)) in listed.iter().enumerate() {
+            let at = &mut fill[o as usize / CHUNK];
+            grouped[*at] = (j as u32, i, o, last);
+            *at += 1;
+        }
         let ctx = Ctx {
             colliders: &self.colliders,
             travel: &travel,
@@ -168,9 +184,9 @@ impl SkinCollision {
             .enumerate()
             .map(|(chunk, (((reach, states), slots), hs))| {
                 let mut counters = Counters::default();
-                let done = listed[bounds[chunk]..bounds[chunk + 1]]
+                let done = grouped[bounds[chunk]..bounds[chunk + 1]]
                     .iter()
-                    .map(|&(o, i, last)| {
+                    .map(|&(j, i, o, last)| {
                         let k = o as usize - chunk * CHUNK;
                         let (mut p, mut last) = (xs[i as usize], last);
                         let (moved, unresolved) = ctx.resolve(
@@ -182,6 +198,7 @@ impl SkinCollision {
                             &mut counters,
                         );
                         Resolved {
+                            j,
                             i,
                             o,
                             p,
@@ -200,7 +217,8 @@ impl SkinCollision {
             counters,
             unresolved: Vec::new(),
         };
-        let mut touching = Vec::new();
+        // The touching vertices go back to the solver's order through their places `j`.
+        let mut touches = vec![None; listed.len()];
         let view = &mut self.view;
         for (done, counters) in resolved {
             pass.counters.add(&counters);
@@ -216,10 +234,13 @@ impl SkinCollision {
                     pass.unresolved.push(r.o);
                 }
                 if r.touching {
-                    touching.push((r.i, r.o));
+                    touches[r.j as usize] = Some((r.i, r.o));
                 }
             }
         }
+        // Rare: a sort only when some vertex stayed unresolved.
+        pass.unresolved.sort_unstable();
+        let touching = touches.into_iter().flatten().collect();
         Some((pass, touching))
     }
 
