@@ -119,22 +119,27 @@ impl SkinCollision {
             .zip(view.prev.par_chunks_mut(CHUNK))
             .enumerate()
             .map(|(chunk, (((xs, at), limit2), prevs))| {
-                let mut listed = Vec::new();
-                for (block, (((xs, at), limit2), prevs)) in xs
-                    .chunks(BLOCK)
-                    .zip(at.chunks(BLOCK))
-                    .zip(limit2.chunks(BLOCK))
-                    .zip(prevs.chunks_mut(BLOCK))
-                    .enumerate()
+                // The blocks' failures first, so that the list is allocated once (most chunks
+                // list nothing and allocate nothing).
+                let mut masks = [0u64; CHUNK / BLOCK];
+                for (mask, ((xs, at), limit2)) in masks
+                    .iter_mut()
+                    .zip(xs.chunks(BLOCK).zip(at.chunks(BLOCK)).zip(limit2.chunks(BLOCK)))
                 {
-                    let mut bits = failures(xs, at, limit2);
+                    *mask = failures(xs, at, limit2);
+                }
+                let failing: u32 = masks.iter().map(|m| m.count_ones()).sum();
+                let mut listed = Vec::with_capacity(failing as usize);
+                for (block, (mut bits, prevs)) in
+                    masks.into_iter().zip(prevs.chunks(BLOCK)).enumerate()
+                {
                     while bits != 0 {
                         let k = bits.trailing_zeros() as usize;
                         bits &= bits - 1;
                         listed.push(((chunk * CHUNK + block * BLOCK + k) as u32, prevs[k]));
                     }
-                    prevs.copy_from_slice(xs);
                 }
+                prevs.copy_from_slice(xs);
                 let skipped = (xs.len() - listed.len()) as u64;
                 (listed, skipped)
             })
@@ -143,7 +148,8 @@ impl SkinCollision {
         // The failing vertices in the solver's order (`i` increasing), then grouped by the
         // caller's chunk that owns their state: a stable counting sort (no comparisons), each
         // entry keeping its place `j` in the solver's order.
-        let mut listed: Vec<(u32, u32, Vec3)> = Vec::new();
+        let mut listed: Vec<(u32, u32, Vec3)> =
+            Vec::with_capacity(per_chunk.iter().map(|(l, _)| l.len()).sum());
         for (l, skipped) in per_chunk {
             counters.skipped_vertices += skipped;
             counters.skipped_bound += skipped * nc as u64;
@@ -279,8 +285,10 @@ impl SkinCollision {
     }
 }
 
-/// Vertices per block of the skip test (one bit each in a `u64`).
+/// Vertices per block of the skip test (one bit each in a `u64`); a whole number of blocks
+/// makes a chunk.
 const BLOCK: usize = 64;
+const _: () = assert!(CHUNK % BLOCK == 0);
 
 /// Bit `k` set for each vertex `k` of a block (at most [`BLOCK`]) at `xs` that fails its skip
 /// test `|x − at|² ≤ limit²` (NaN fails).
