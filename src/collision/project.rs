@@ -122,10 +122,11 @@ impl SkinCollision {
                 // The blocks' failures first, so that the list is allocated once (most chunks
                 // list nothing and allocate nothing).
                 let mut masks = [0u64; CHUNK / BLOCK];
-                for (mask, ((xs, at), limit2)) in masks
-                    .iter_mut()
-                    .zip(xs.chunks(BLOCK).zip(at.chunks(BLOCK)).zip(limit2.chunks(BLOCK)))
-                {
+                for (mask, ((xs, at), limit2)) in masks.iter_mut().zip(
+                    xs.chunks(BLOCK)
+                        .zip(at.chunks(BLOCK))
+                        .zip(limit2.chunks(BLOCK)),
+                ) {
                     *mask = failures(xs, at, limit2);
                 }
                 let failing: u32 = masks.iter().map(|m| m.count_ones()).sum();
@@ -288,7 +289,7 @@ impl SkinCollision {
 /// Vertices per block of the skip test (one bit each in a `u64`); a whole number of blocks
 /// makes a chunk.
 const BLOCK: usize = 64;
-const _: () = assert!(CHUNK % BLOCK == 0);
+const _: () = assert!(CHUNK.is_multiple_of(BLOCK));
 
 /// Bit `k` set for each vertex `k` of a block (at most [`BLOCK`]) at `xs` that fails its skip
 /// test `|x − at|² ≤ limit²` (NaN fails).

@@ -1229,7 +1229,10 @@ fn projections_over_many_chunks_report_contacts_and_unresolved_vertices_in_order
         }
         let active = skin.active_contacts();
         let got: Vec<u32> = active.iter().map(|a| a.vertex).collect();
-        assert!(got.windows(2).all(|w| w[0] <= w[1]), "pass {pass}: unsorted");
+        assert!(
+            got.windows(2).all(|w| w[0] <= w[1]),
+            "pass {pass}: unsorted"
+        );
         let want: Vec<u32> = expected.iter().map(|e| e.0).collect();
         assert_eq!(got, want, "pass {pass}");
         for (a, &(i, k)) in active.iter().zip(&expected) {
