@@ -119,8 +119,8 @@ impl SkinCollision {
             .zip(view.prev.par_chunks_mut(CHUNK))
             .enumerate()
             .map(|(chunk, (((xs, at), limit2), prevs))| {
-                // The blocks' failures first, so that the list is allocated once (most chunks
-                // list nothing and allocate nothing).
+                // The blocks' failures first, so that the list is allocated once (a chunk
+                // with none allocates nothing).
                 let mut masks = [0u64; CHUNK / BLOCK];
                 for (mask, ((xs, at), limit2)) in masks.iter_mut().zip(
                     xs.chunks(BLOCK)
@@ -148,7 +148,9 @@ impl SkinCollision {
         let mut counters = Counters::default();
         // The failing vertices in the solver's order (`i` increasing), then grouped by the
         // caller's chunk that owns their state: a stable counting sort (no comparisons), each
-        // entry keeping its place `j` in the solver's order.
+        // entry keeping its place `j` in the solver's order. Within a chunk they are resolved
+        // in the solver's order: a resolution reads and writes only its own vertex's state
+        // (the counters are sums), so the order changes nothing.
         let mut listed: Vec<(u32, u32, Vec3)> =
             Vec::with_capacity(per_chunk.iter().map(|(l, _)| l.len()).sum());
         for (l, skipped) in per_chunk {
