@@ -1099,13 +1099,12 @@ impl Projection for SkinCollision {
                 return false;
             }
         }
-        let Some((done, mut touching)) = self.project_pass(x) else {
+        // The touching vertices come in the solver's order; each with its contacts in
+        // resolution order below.
+        let Some((done, touching)) = self.project_pass(x) else {
             return false;
         };
         let moved = done.counters.moved > 0;
-        // The touching vertices in the solver's order, each with its contacts in resolution
-        // order.
-        touching.sort_unstable();
         self.record(done.counters, done.unresolved);
         let stick = self.config.friction >= 1.0;
         for (i, o) in touching {

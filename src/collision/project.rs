@@ -60,7 +60,10 @@ fn test_of(r: &Reach, travel: f64) -> (Vec3, f32) {
 }
 
 /// One resolved vertex.
+#[derive(Clone, Copy)]
 struct Resolved {
+    /// Place among the pass's resolved vertices in the solver's order.
+    j: u32,
     /// Internal index.
     i: u32,
     /// Caller's index.
@@ -92,8 +95,8 @@ impl SkinCollision {
 
     /// A projection pass over `x` in the solver's order (`self.rank_of`, already checked to be
     /// a permutation), with the swept test: what it did, and the `(internal, caller's)` index
-    /// of every vertex touching a collider after it; `None` when there is nothing to collide
-    /// with.
+    /// of every vertex touching a collider after it, by increasing internal index; `None` when
+    /// there is nothing to collide with.
     pub(super) fn project_pass(&mut self, x: &mut [Vec3]) -> Option<(ChunkPass, Vec<(u32, u32)>)> {
         let nc = self.colliders.len();
         let n = x.len();
@@ -116,41 +119,63 @@ impl SkinCollision {
             .zip(view.prev.par_chunks_mut(CHUNK))
             .enumerate()
             .map(|(chunk, (((xs, at), limit2), prevs))| {
-                let mut listed = Vec::new();
-                for (block, (((xs, at), limit2), prevs)) in xs
-                    .chunks(BLOCK)
-                    .zip(at.chunks(BLOCK))
-                    .zip(limit2.chunks(BLOCK))
-                    .zip(prevs.chunks_mut(BLOCK))
-                    .enumerate()
+                // The blocks' failures first, so that the list is allocated once (a chunk
+                // with none allocates nothing).
+                let mut masks = [0u64; CHUNK / BLOCK];
+                for (mask, ((xs, at), limit2)) in masks.iter_mut().zip(
+                    xs.chunks(BLOCK)
+                        .zip(at.chunks(BLOCK))
+                        .zip(limit2.chunks(BLOCK)),
+                ) {
+                    *mask = failures(xs, at, limit2);
+                }
+                let failing: u32 = masks.iter().map(|m| m.count_ones()).sum();
+                let mut listed = Vec::with_capacity(failing as usize);
+                for (block, (mut bits, prevs)) in
+                    masks.into_iter().zip(prevs.chunks(BLOCK)).enumerate()
                 {
-                    let mut bits = failures(xs, at, limit2);
                     while bits != 0 {
                         let k = bits.trailing_zeros() as usize;
                         bits &= bits - 1;
                         listed.push(((chunk * CHUNK + block * BLOCK + k) as u32, prevs[k]));
                     }
-                    prevs.copy_from_slice(xs);
                 }
+                prevs.copy_from_slice(xs);
                 let skipped = (xs.len() - listed.len()) as u64;
                 (listed, skipped)
             })
             .collect();
         let mut counters = Counters::default();
-        let mut listed: Vec<(u32, u32, Vec3)> = Vec::new();
+        // The failing vertices in the solver's order (`i` increasing), then grouped by the
+        // caller's chunk that owns their state: a stable counting sort (no comparisons), each
+        // entry keeping its place `j` in the solver's order. Within a chunk they are resolved
+        // in the solver's order: a resolution reads and writes only its own vertex's state
+        // (the counters are sums), so the order changes nothing.
+        let mut listed: Vec<(u32, u32, Vec3)> =
+            Vec::with_capacity(per_chunk.iter().map(|(l, _)| l.len()).sum());
         for (l, skipped) in per_chunk {
             counters.skipped_vertices += skipped;
             counters.skipped_bound += skipped * nc as u64;
             listed.extend(
                 l.into_iter()
-                    .map(|(i, last)| (self.rank_of[i as usize], i, last)),
+                    .map(|(i, last)| (i, self.rank_of[i as usize], last)),
             );
         }
-        // Resolved in the caller's order, each chunk of state by one task.
-        listed.sort_unstable_by_key(|&(o, _, _)| o);
-        let bounds: Vec<usize> = (0..=n.div_ceil(CHUNK))
-            .map(|c| listed.partition_point(|&(o, _, _)| (o as usize) < c * CHUNK))
-            .collect();
+        let chunks = n.div_ceil(CHUNK);
+        let mut bounds = vec![0usize; chunks + 1];
+        for &(_, o, _) in &listed {
+            bounds[o as usize / CHUNK + 1] += 1;
+        }
+        for c in 0..chunks {
+            bounds[c + 1] += bounds[c];
+        }
+        let mut fill = bounds.clone();
+        let mut grouped = vec![(0u32, 0u32, 0u32, Vec3::ZERO); listed.len()];
+        for (j, &(i, o, last)) in listed.iter().enumerate() {
+            let at = &mut fill[o as usize / CHUNK];
+            grouped[*at] = (j as u32, i, o, last);
+            *at += 1;
+        }
         let ctx = Ctx {
             colliders: &self.colliders,
             travel: &travel,
@@ -168,9 +193,9 @@ impl SkinCollision {
             .enumerate()
             .map(|(chunk, (((reach, states), slots), hs))| {
                 let mut counters = Counters::default();
-                let done = listed[bounds[chunk]..bounds[chunk + 1]]
+                let done = grouped[bounds[chunk]..bounds[chunk + 1]]
                     .iter()
-                    .map(|&(o, i, last)| {
+                    .map(|&(j, i, o, last)| {
                         let k = o as usize - chunk * CHUNK;
                         let (mut p, mut last) = (xs[i as usize], last);
                         let (moved, unresolved) = ctx.resolve(
@@ -182,6 +207,7 @@ impl SkinCollision {
                             &mut counters,
                         );
                         Resolved {
+                            j,
                             i,
                             o,
                             p,
@@ -200,7 +226,8 @@ impl SkinCollision {
             counters,
             unresolved: Vec::new(),
         };
-        let mut touching = Vec::new();
+        // The touching vertices go back to the solver's order through their places `j`.
+        let mut touches = vec![None; listed.len()];
         let view = &mut self.view;
         for (done, counters) in resolved {
             pass.counters.add(&counters);
@@ -216,10 +243,13 @@ impl SkinCollision {
                     pass.unresolved.push(r.o);
                 }
                 if r.touching {
-                    touching.push((r.i, r.o));
+                    touches[r.j as usize] = Some((r.i, r.o));
                 }
             }
         }
+        // Rare: a sort only when some vertex stayed unresolved.
+        pass.unresolved.sort_unstable();
+        let touching = touches.into_iter().flatten().collect();
         Some((pass, touching))
     }
 
@@ -258,8 +288,10 @@ impl SkinCollision {
     }
 }
 
-/// Vertices per block of the skip test (one bit each in a `u64`).
+/// Vertices per block of the skip test (one bit each in a `u64`); a whole number of blocks
+/// makes a chunk.
 const BLOCK: usize = 64;
+const _: () = assert!(CHUNK.is_multiple_of(BLOCK));
 
 /// Bit `k` set for each vertex `k` of a block (at most [`BLOCK`]) at `xs` that fails its skip
 /// test `|x − at|² ≤ limit²` (NaN fails).

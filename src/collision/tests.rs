@@ -1167,3 +1167,87 @@ fn only_vertices_on_the_surface_are_reported_as_active_contacts() {
     // The band vertex still counts as touching (friction anchors, the contact count).
     assert_eq!(skin.diagnostics().contacts, 3);
 }
+
+/// A projection resolves its listed vertices grouped by the caller's chunks of state (a
+/// counting sort) and hands back the touching ones in the solver's order: over several chunks
+/// and a shuffled order, the active contacts and the unresolved vertices are exactly those the
+/// balls' closed-form distances give, sorted (solver's order for the contacts, caller's for
+/// the unresolved), on every pass.
+#[test]
+fn projections_over_many_chunks_report_contacts_and_unresolved_vertices_in_order() {
+    let (r, h) = (0.2f32, 0.01f32);
+    let config = ContactConfig {
+        thickness_m: h,
+        ..ContactConfig::DEFAULT
+    };
+    let tol = config.tolerance_m;
+    // Two balls whose surfaces are one thickness apart at x = 0: a vertex there cannot be a
+    // thickness from both (unresolved); elsewhere vertices end on a surface or away from both.
+    let centres = [Vec3::X * -(r + 0.5 * h), Vec3::X * (r + 0.5 * h)];
+    let n = 3 * CHUNK + 17;
+    let mut skin = SkinCollision::new(n, config).unwrap();
+    for c in centres {
+        skin.add_collider(
+            ColliderMesh::ball(r)
+                .unwrap()
+                .with_pose(Pose::from_translation(c)),
+        );
+    }
+    let mut rng = Lcg(11);
+    let caller: Vec<Vec3> = (0..n)
+        .map(|i| match i % 5 {
+            // In the slit between the balls.
+            0 => Vec3::new(0.0, 0.01 * rng.next(), 0.01 * rng.next()),
+            // Far away.
+            1 => Vec3::new(0.0, 1.0 + rng.next(), 0.0),
+            // Near a ball's surface (inside or out).
+            _ => {
+                let c = centres[i % 2];
+                let dir = (rng.point(1.0) + Vec3::splat(1e-3)).normalize();
+                c + dir * (r + h * (2.0 * rng.next() - 0.5))
+            }
+        })
+        .collect();
+    let mut order: Vec<u32> = (0..n as u32).collect();
+    for i in (1..n).rev() {
+        let j = (rng.next() * (i + 1) as f32) as usize;
+        order.swap(i, j.min(i));
+    }
+    let mut x: Vec<Vec3> = order.iter().map(|&o| caller[o as usize]).collect();
+    for pass in 0..3 {
+        skin.project(&mut x, &order);
+        // Independent answer: the signed distances to the two balls.
+        let s = |p: Vec3, c: Vec3| p.distance(c) - r;
+        let mut expected = Vec::new();
+        for (i, &p) in x.iter().enumerate() {
+            for (k, &c) in centres.iter().enumerate() {
+                let d = s(p, c);
+                if d <= h + tol {
+                    expected.push((i as u32, k));
+                }
+            }
+        }
+        let active = skin.active_contacts();
+        let got: Vec<u32> = active.iter().map(|a| a.vertex).collect();
+        assert!(
+            got.windows(2).all(|w| w[0] <= w[1]),
+            "pass {pass}: unsorted"
+        );
+        let want: Vec<u32> = expected.iter().map(|e| e.0).collect();
+        assert_eq!(got, want, "pass {pass}");
+        for (a, &(i, k)) in active.iter().zip(&expected) {
+            let outward = (x[i as usize] - centres[k]).normalize();
+            assert!(a.normal.distance(outward) < 1e-4, "pass {pass} vertex {i}");
+        }
+        // The slit vertices stay unresolved, listed by caller's index, increasing.
+        let unresolved = &skin.diagnostics().unresolved;
+        let want: Vec<u32> = (0..n as u32)
+            .filter(|&o| {
+                let p = x[order.iter().position(|&q| q == o).unwrap()];
+                centres.iter().any(|&c| s(p, c) < h - tol)
+            })
+            .collect();
+        assert!(want.len() >= n / 5, "pass {pass}: {}", want.len());
+        assert_eq!(unresolved, &want, "pass {pass}");
+    }
+}
