@@ -82,6 +82,21 @@ impl ContactSet {
         self.list.extend_from_slice(contacts);
     }
 
+    /// `Σ r·d` over the vertices of the reported contacts (each once): the part of a sum over
+    /// all vertices that [`constrain`](Self::constrain) can change.
+    pub fn dot_at_contacts(&self, r: &[Vec3], d: &[Vec3]) -> f64 {
+        let mut sum = 0.0;
+        let mut last = None;
+        for c in &self.list {
+            if last != Some(c.vertex) {
+                let v = c.vertex as usize;
+                sum += f64::from(r[v].dot(d[v]));
+                last = Some(c.vertex);
+            }
+        }
+        sum
+    }
+
     /// Decides which contacts hold their vertex, drops the held normal components from `r`
     /// (all of `r` for a sticking contact) and corrects the sums `rr` and `rzr` of the force
     /// gather for them.

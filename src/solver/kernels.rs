@@ -37,6 +37,9 @@ pub(crate) struct Sums {
     pub rzr: f64,
     /// `Σ w r·r_old`, with `r_old` what the force buffer held before the gather.
     pub rz_old: f64,
+    /// `Σ r·d` of the new force and the step's direction `d` (0 for a gather without a
+    /// step): with the slope before the step, how much the slope along `d` changed over it.
+    pub rd: f64,
 }
 
 impl std::ops::AddAssign for Sums {
@@ -45,6 +48,7 @@ impl std::ops::AddAssign for Sums {
         self.rr += o.rr;
         self.rzr += o.rzr;
         self.rz_old += o.rz_old;
+        self.rd += o.rd;
     }
 }
 

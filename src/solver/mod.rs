@@ -681,6 +681,9 @@ impl SpringSystem {
             // a projection that keeps the held set only corrects a drift, and the held
             // vertices' residuals are tangent to their contacts before and after.
             let rz_old = sums.rz_old;
+            // `Σ r·d` at the trial point, from the same gather, corrected below where the
+            // held contacts change `r`.
+            let mut rd = sums.rd;
             let mut proportioning = false;
             let mut hold_restart = false;
             // The step `x += a d` lands exactly on the trial point; without a projection it is
@@ -693,9 +696,12 @@ impl SpringSystem {
                 if p.project(&mut xi, &self.order) {
                     sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
                     energy = sums.energy;
+                    rd = dot(&r, &d);
                 }
                 contacts.refresh(p.active_contacts());
+                rd -= contacts.dot_at_contacts(&r, &d);
                 let c = contacts.constrain(&mut r, &inv_diag, &mut sums);
+                rd += contacts.dot_at_contacts(&r, &d);
                 chopped_rr = c.chopped_rr;
                 // A release restarts the directions with a proportioning step: only the
                 // released vertices move, along their own forces (see
@@ -734,7 +740,7 @@ impl SpringSystem {
             let beta = if after_proportioning || hold_restart || rz <= 0.0 {
                 0.0
             } else {
-                let slope_change = slope - dot(&r, &d);
+                let slope_change = slope - rd;
                 if slope_change > 0.0 {
                     ((sums.rzr - rz_old) / slope_change)
                         .min(sums.rzr / rz)

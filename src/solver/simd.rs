@@ -1281,8 +1281,15 @@ fn force_chunk<S: Lanes, const STEP: bool>(
     // Per-lane sums (lane = vertex mod 8), added across lanes in order at the end (the
     // energy's twice).
     let zero = l.splat(0.0);
-    let (mut energy_acc, mut rr, mut rzr, mut rz_old) =
-        (l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0), l.dsplat(0.0));
+    let (mut energy_acc, mut rr, mut rzr, mut rz_old, mut rd) = (
+        l.dsplat(0.0),
+        l.dsplat(0.0),
+        l.dsplat(0.0),
+        l.dsplat(0.0),
+        l.dsplat(0.0),
+    );
+    // The step's direction, for `Σ r·d`.
+    let step_dir = f.step.filter(|_| STEP).map(|(d, _)| d);
     for (s, out) in (first / LANES..).zip(r.chunks_mut(LANES)) {
         // SAFETY: lengths asserted above; spring indices are below n by construction.
         let ([fx, fy, fz], energy) =
@@ -1306,6 +1313,13 @@ fn force_chunk<S: Lanes, const STEP: bool>(
                 let fo = l.add(l.add(l.mul(fx, ox), l.mul(fy, oy)), l.mul(fz, oz));
                 rzr = l.dadd(rzr, l.widen(l.mul(w, ff)));
                 rz_old = l.dadd(rz_old, l.widen(l.mul(w, fo)));
+                if let Some(d) = step_dir {
+                    // SAFETY: `d` has `n` vectors (asserted above); this slice's eight are
+                    // in bounds.
+                    let [dx, dy, dz] = unsafe { l.load3(d.as_ptr().add(base).cast::<f32>()) };
+                    let fd = l.add(l.add(l.mul(fx, dx), l.mul(fy, dy)), l.mul(fz, dz));
+                    rd = l.dadd(rd, l.widen(fd));
+                }
                 (fx, fy, fz)
             } else {
                 let ff = l.add(l.add(l.mul(fx, fx), l.mul(fy, fy)), l.mul(fz, fz));
@@ -1318,7 +1332,8 @@ fn force_chunk<S: Lanes, const STEP: bool>(
         }
         // The last, partial slice: the same per-lane values, lane by lane.
         let ([fx, fy, fz], energy) = ([l.store(fx), l.store(fy), l.store(fz)], l.dstore(energy));
-        let (mut e8, mut rr8, mut rzr8, mut rzo8) = ([0.0f64; 8], [0.0f64; 8], [0.0; 8], [0.0; 8]);
+        let (mut e8, mut rr8, mut rzr8, mut rzo8, mut rd8) =
+            ([0.0f64; 8], [0.0f64; 8], [0.0; 8], [0.0; 8], [0.0; 8]);
         for (lane, slot) in out.iter_mut().enumerate() {
             let i = base + lane;
             let force = if w.is_some_and(|w| w[i].is_sign_negative()) {
@@ -1332,6 +1347,9 @@ fn force_chunk<S: Lanes, const STEP: bool>(
             if let Some(w) = w {
                 rzr8[lane] = (w[i] * ff) as f64;
                 rzo8[lane] = (w[i] * force.dot(*slot)) as f64;
+                if let Some(d) = step_dir {
+                    rd8[lane] = force.dot(d[i]) as f64;
+                }
             }
             *slot = force;
         }
@@ -1340,6 +1358,7 @@ fn force_chunk<S: Lanes, const STEP: bool>(
         if w.is_some() {
             rzr = l.dadd(rzr, l.dfrom(rzr8));
             rz_old = l.dadd(rz_old, l.dfrom(rzo8));
+            rd = l.dadd(rd, l.dfrom(rd8));
         }
     }
     let sum = |d: S::D| l.dstore(d).iter().fold(0.0f64, |a, b| a + b);
@@ -1348,6 +1367,7 @@ fn force_chunk<S: Lanes, const STEP: bool>(
         rr: sum(rr),
         rzr: sum(rzr),
         rz_old: sum(rz_old),
+        rd: sum(rd),
     }
 }
 
