@@ -1863,6 +1863,11 @@ mod tests {
         let stepped: Vec<Vec3> = x0.iter().zip(&d).map(|(x, d)| *x + *d * a).collect();
         for (x, step, at) in [(&xi, None, &xi), (&x0, Some((d.as_slice(), a)), &stepped)] {
             let (want, want_energy) = reference(sell, at, &ai, &ei, &pi);
+            // `Σ r·d` with the step's direction (none without a step), summed plainly.
+            let want_rd: f64 = step.map_or(0.0, |(d, _)| {
+                want.iter().zip(d).map(|(f, d)| f64::from(f.dot(*d))).sum()
+            });
+            let mut rd_bits = None;
             for isa in isas() {
                 let inputs = ForceInputs {
                     sell,
@@ -1881,6 +1886,14 @@ mod tests {
                 assert_eq!(sums.energy.to_bits(), want_energy.to_bits(), "{isa:?}");
                 assert!(r.iter().zip(&pi).all(|(f, p)| !p || *f == Vec3::ZERO));
                 assert!(pi.iter().any(|p| *p));
+                // The same per-lane order on every path; the plain sum up to its order.
+                assert!(
+                    (sums.rd - want_rd).abs() <= 1e-12 * want_rd.abs().max(1e-30),
+                    "{isa:?}: Σ r·d {} vs {want_rd}",
+                    sums.rd
+                );
+                assert_eq!(step.is_some(), want_rd != 0.0);
+                assert_eq!(*rd_bits.get_or_insert(sums.rd.to_bits()), sums.rd.to_bits());
             }
         }
     }
