@@ -7,8 +7,9 @@ what other methods need on the same energy, all in f64 here:
    condition number sets linear CG's rate, (sqrt(k) - 1) / (sqrt(k) + 1) per iteration);
 2. linear PCG on that Hessian from the warm start's residual, with the solver's scalar Jacobi
    preconditioner and with smoothed-aggregation AMG (pyamg);
-3. the solver's method (Polak-Ribiere+ nonlinear CG, Gauss-Newton curvature step, backtracking)
-   on the true nonlinear energy, with the same two preconditioners;
+3. the solver's method (nonlinear CG, Gauss-Newton curvature step, backtracking) on the true
+   nonlinear energy, with Polak-Ribiere+ (the rule until session 6) and Hestenes-Stiefel capped
+   by Fletcher-Reeves (since), each with the same two preconditioners;
 4. Gauss-Newton with exact linear solves (outer iterations);
 5. the lowest eigenvalues of the true (not Gauss-Newton) Hessian at the warm start and at the
    solution: negative ones mean compressed springs buckle there.
@@ -113,16 +114,18 @@ def linear_pcg(H, b, M, tol, maxit=3000):
     return maxit
 
 
-def nonlinear_cg(x, A, M, tol, maxit=1000):
-    """The solver's method in f64: PR+, step slope / Gauss-Newton curvature, halved until the
-    energy falls."""
+def nonlinear_cg(x, A, M, tol, rule, maxit=1000):
+    """The solver's method in f64: step slope / Gauss-Newton curvature, halved until the energy
+    falls; `rule` "pr" (Polak-Ribiere+, the solver's until session 6) or "hsfr"
+    (Hestenes-Stiefel capped by Fletcher-Reeves, the solver's since)."""
     r = force(x, A)
     z = M(r)
     d, rz, e0 = z.copy(), (r * z).sum(), energy(x, A)
     for it in range(maxit):
         if np.linalg.norm(r) <= tol:
             return it
-        a = (r * d).sum() / gn_curvature(x, d, A)
+        slope = (r * d).sum()
+        a = slope / gn_curvature(x, d, A)
         while energy(x + a * d, A) >= e0:
             a *= 0.5
             if a < 1e-30:
@@ -132,7 +135,12 @@ def nonlinear_cg(x, A, M, tol, maxit=1000):
         r_new = force(x, A)
         z_new = M(r_new)
         rz_new = (r_new * z_new).sum()
-        beta = max((rz_new - (z_new * r).sum()) / rz, 0.0)
+        if rule == "pr":
+            beta = max((rz_new - (z_new * r).sum()) / rz, 0.0)
+        else:
+            slope_change = slope - (r_new * d).sum()
+            beta = (max(min((rz_new - (z_new * r).sum()) / slope_change, rz_new / rz), 0.0)
+                    if slope_change > 0 else 0.0)
         d, r, rz = z_new + beta * d, r_new, rz_new
     return f"budget {maxit}"
 
@@ -201,8 +209,9 @@ for frame in sys.argv[2:]:
     print(f"  linear PCG from the warm start's residual: Jacobi {linear_pcg(H, r0.ravel(), jacobi, tol)}, "
           f"smoothed-aggregation AMG {linear_pcg(H, r0.ravel(), lambda r: M_amg(r), tol)} iterations")
     M0 = amg(hessian(x0, A), n)
-    print(f"  nonlinear CG (the solver's method, f64): Jacobi {nonlinear_cg(x0, A, jacobi, tol)}, "
-          f"AMG {nonlinear_cg(x0, A, M0, tol)} iterations")
+    for rule in ["pr", "hsfr"]:
+        print(f"  nonlinear CG ({rule}, f64): Jacobi {nonlinear_cg(x0, A, jacobi, tol, rule)}, "
+              f"AMG {nonlinear_cg(x0, A, M0, tol, rule)} iterations")
     print(f"  Gauss-Newton with exact solves: {gauss_newton(x0, A, tol)} outer iterations")
     for name, x in [("warm start", x0), ("solution", x1)]:
         ev, part = lowest_true(x, A, w)
