@@ -18,8 +18,8 @@ use thiserror::Error;
 use crate::mesh::TriMesh;
 use contact::ContactSet;
 use kernels::{Frame, Sums, advance, dot, step_and_update_direction, update_direction};
-use team::{Par, Team};
 use sell::Sell;
+use team::{Par, Team};
 
 /// Iterations at the start of a projected solve in which a newly held contact restarts the
 /// conjugate directions. A solve after a collider moved (a substep) holds whole rings of

@@ -212,7 +212,10 @@ impl<'a, T> Chunked<'a, T> {
     /// No two live references to the same chunk: within one parallel loop each chunk index is
     /// handed to one call only ([`Par::for_each`]).
     #[expect(unsafe_code, reason = "disjoint chunks of a mutably borrowed slice")]
-    #[expect(clippy::mut_from_ref, reason = "each chunk is handed out once per loop")]
+    #[expect(
+        clippy::mut_from_ref,
+        reason = "each chunk is handed out once per loop"
+    )]
     pub unsafe fn chunk(&self, c: usize) -> &mut [T] {
         let start = (c * self.size).min(self.len);
         let end = (start + self.size).min(self.len);
