@@ -14,6 +14,7 @@ use rayon::prelude::*;
 use super::VertexAnchor;
 use super::sell::{LANES, Sell};
 use super::simd::{self, ForceInputs, Isa};
+use super::team::{Chunked, Par};
 
 /// Vertices per parallel chunk; fixed so reductions do not depend on the thread count.
 pub(crate) const CHUNK: usize = 1024;
@@ -24,6 +25,8 @@ pub(crate) struct Frame<'a> {
     pub isa: Isa,
     pub external: Option<&'a [Vec3]>,
     pub anchors: Option<&'a [VertexAnchor]>,
+    /// Where the parallel loops run.
+    pub par: Par<'a>,
 }
 
 /// The reductions of one force gather (each summed per chunk, then over chunks in order).
@@ -95,6 +98,7 @@ impl Frame<'_> {
         self.gather_inputs(x, Some((d, a)), w, r, partial)
     }
 
+    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
     fn gather_inputs(
         &self,
         x: &[Vec3],
@@ -111,21 +115,27 @@ impl Frame<'_> {
             external: self.external,
             w,
         };
-        r.par_chunks_mut(CHUNK)
-            .zip(partial.par_iter_mut())
-            .enumerate()
-            .for_each(|(c, (chunk, p))| *p = inputs.chunk(self.isa, c * CHUNK, chunk));
+        let (rs, ps) = (Chunked::new(r, CHUNK), Chunked::new(partial, 1));
+        self.par.for_each(ps.chunks(), |c| {
+            // SAFETY: each chunk index once per loop.
+            let (r, p) = unsafe { (rs.chunk(c), ps.chunk(c)) };
+            p[0] = inputs.chunk(self.isa, c * CHUNK, r);
+        });
         total(partial)
     }
 
     /// `dᵀ H d` for the spring Hessian at `x`, with the transverse term clamped at zero for
     /// compressed springs (a Gauss-Newton curvature, never negative). Each spring is visited
     /// once, from its lower-numbered end.
+    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
     pub fn curvature(&self, x: &[Vec3], d: &[Vec3], partial: &mut [f64]) -> f64 {
         let slices = self.sell.slices();
-        partial.par_iter_mut().enumerate().for_each(|(c, p)| {
+        let ps = Chunked::new(partial, 1);
+        self.par.for_each(ps.chunks(), |c| {
             let range = c * (CHUNK / LANES)..((c + 1) * (CHUNK / LANES)).min(slices);
-            *p = simd::curvature(self.isa, self.sell, x, d, self.anchors, range);
+            // SAFETY: each chunk index once per loop.
+            let p = unsafe { ps.chunk(c) };
+            p[0] = simd::curvature(self.isa, self.sell, x, d, self.anchors, range);
         });
         total(partial)
     }
@@ -152,7 +162,9 @@ impl Frame<'_> {
 }
 
 /// The direction update `d = w·r + β d`; returns `Σ r·d` (the slope along the new direction).
+#[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
 pub(crate) fn update_direction(
+    par: Par<'_>,
     d: &mut [Vec3],
     r: &[Vec3],
     w: &[f32],
@@ -160,17 +172,22 @@ pub(crate) fn update_direction(
     partial: &mut [f64],
 ) -> f64 {
     let isa = Isa::detect(0);
-    d.par_chunks_mut(CHUNK)
-        .zip(r.par_chunks(CHUNK))
-        .zip(w.par_chunks(CHUNK))
-        .zip(partial.par_iter_mut())
-        .for_each(|(((d, r), w), p)| *p = simd::direction(isa, d, r, w, beta, None));
+    let (ds, ps) = (Chunked::new(d, CHUNK), Chunked::new(partial, 1));
+    par.for_each(ps.chunks(), |c| {
+        let range = c * CHUNK..((c + 1) * CHUNK).min(r.len());
+        // SAFETY: each chunk index once per loop.
+        let (d, p) = unsafe { (ds.chunk(c), ps.chunk(c)) };
+        p[0] = simd::direction(isa, d, &r[range.clone()], &w[range], beta, None);
+    });
     total(partial)
 }
 
 /// The accepted step `x += a d` fused with the direction update `d = w·r + β d` that follows
 /// it (one pass instead of two); returns `Σ r·d` for the new direction.
+#[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
+#[expect(clippy::too_many_arguments, reason = "one fused pass over five fields")]
 pub(crate) fn step_and_update_direction(
+    par: Par<'_>,
     x: &mut [Vec3],
     a: f32,
     d: &mut [Vec3],
@@ -180,31 +197,41 @@ pub(crate) fn step_and_update_direction(
     partial: &mut [f64],
 ) -> f64 {
     let isa = Isa::detect(0);
-    x.par_chunks_mut(CHUNK)
-        .zip(d.par_chunks_mut(CHUNK))
-        .zip(r.par_chunks(CHUNK))
-        .zip(w.par_chunks(CHUNK))
-        .zip(partial.par_iter_mut())
-        .for_each(|((((x, d), r), w), p)| {
-            *p = simd::direction(isa, d, r, w, beta, Some((x, a)));
-        });
+    let (xs, ds) = (Chunked::new(x, CHUNK), Chunked::new(d, CHUNK));
+    let ps = Chunked::new(partial, 1);
+    par.for_each(ps.chunks(), |c| {
+        let range = c * CHUNK..((c + 1) * CHUNK).min(r.len());
+        // SAFETY: each chunk index once per loop.
+        let (x, d, p) = unsafe { (xs.chunk(c), ds.chunk(c), ps.chunk(c)) };
+        p[0] = simd::direction(isa, d, &r[range.clone()], &w[range], beta, Some((x, a)));
+    });
     total(partial)
 }
 
 /// The accepted step `x += a d` (the same f32 operations as [`Frame::gather_step`]).
-pub(crate) fn advance(x: &mut [Vec3], d: &[Vec3], a: f32) {
+#[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
+pub(crate) fn advance(par: Par<'_>, x: &mut [Vec3], d: &[Vec3], a: f32) {
     let isa = Isa::detect(0);
-    x.par_chunks_mut(CHUNK)
-        .zip(d.par_chunks(CHUNK))
-        .for_each(|(x, d)| simd::advance(isa, x, d, a));
+    let xs = Chunked::new(x, CHUNK);
+    par.for_each(chunks(d.len()), |c| {
+        let range = c * CHUNK..((c + 1) * CHUNK).min(d.len());
+        // SAFETY: each chunk index once per loop.
+        let x = unsafe { xs.chunk(c) };
+        simd::advance(isa, x, &d[range], a);
+    });
 }
 
-/// Deterministic dot product of two vector fields (f64 accumulation, chunked).
-pub(crate) fn dot(a: &[Vec3], b: &[Vec3]) -> f64 {
-    let partial: Vec<f64> = a
-        .par_chunks(CHUNK)
-        .zip(b.par_chunks(CHUNK))
-        .map(|(a, b)| a.iter().zip(b).map(|(a, b)| a.dot(*b) as f64).sum::<f64>())
-        .collect();
+/// Deterministic dot product of two vector fields (f64 accumulation, chunked); `partial` is
+/// scratch with one entry per chunk.
+#[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
+pub(crate) fn dot(par: Par<'_>, a: &[Vec3], b: &[Vec3], partial: &mut [f64]) -> f64 {
+    let ps = Chunked::new(partial, 1);
+    par.for_each(ps.chunks(), |c| {
+        let range = c * CHUNK..((c + 1) * CHUNK).min(a.len());
+        let (a, b) = (&a[range.clone()], &b[range]);
+        // SAFETY: each chunk index once per loop.
+        let p = unsafe { ps.chunk(c) };
+        p[0] = a.iter().zip(b).map(|(a, b)| a.dot(*b) as f64).sum::<f64>();
+    });
     partial.iter().sum()
 }

@@ -6,6 +6,7 @@ mod kernels;
 mod reorder;
 mod sell;
 mod simd;
+mod team;
 
 pub use reorder::morton_order;
 
@@ -18,6 +19,7 @@ use crate::mesh::TriMesh;
 use contact::ContactSet;
 use kernels::{Frame, Sums, advance, dot, step_and_update_direction, update_direction};
 use sell::Sell;
+use team::{Par, Team};
 
 /// Iterations at the start of a projected solve in which a newly held contact restarts the
 /// conjugate directions. A solve after a collider moved (a substep) holds whole rings of
@@ -445,12 +447,14 @@ impl SpringSystem {
         &'a self,
         external: Option<&'a [Vec3]>,
         anchors: Option<&'a [VertexAnchor]>,
+        par: Par<'a>,
     ) -> Frame<'a> {
         Frame {
             sell: &self.sell,
             isa: simd::Isa::detect(self.vertex_count()),
             external,
             anchors,
+            par,
         }
     }
 
@@ -460,7 +464,7 @@ impl SpringSystem {
         let xi = self.to_internal(x);
         let mut f = vec![Vec3::ZERO; xi.len()];
         let mut partial = vec![Sums::default(); kernels::chunks(xi.len())];
-        self.frame(None, None)
+        self.frame(None, None, Par::Pool)
             .gather(&xi, None, &mut f, &mut partial);
         let mut out = vec![Vec3::ZERO; xi.len()];
         self.to_caller(&f, &mut out);
@@ -474,7 +478,7 @@ impl SpringSystem {
         let mut f = vec![Vec3::ZERO; xi.len()];
         let mut partial = vec![Sums::default(); kernels::chunks(xi.len())];
         Ok(self
-            .frame(None, None)
+            .frame(None, None, Par::Pool)
             .gather(&xi, None, &mut f, &mut partial)
             .energy)
     }
@@ -507,11 +511,11 @@ impl SpringSystem {
         config: &RelaxConfig,
         projection: Option<&mut dyn Projection>,
     ) -> Result<RelaxReport, SolverError> {
-        // The whole solve runs as one job on the rayon pool: each iteration has several
-        // parallel loops, and entered from outside the pool every one of them would wait for a
-        // worker to wake up and hand the result back (futex round trips that cost more than a
-        // 10k-vertex loop). Inside a worker, `scope` runs the closure in place.
-        rayon::scope(|_| self.relax_on_pool(x, loads, config, projection))
+        // The whole solve runs on the rayon pool as the leader of a team (see `team`): each
+        // iteration has several short parallel loops, and handed to rayon one by one every
+        // loop would wait for a sleeping worker to wake up (futex round trips that cost more
+        // than a 10k-vertex loop). The team's helpers stay awake for the whole solve.
+        Team::lead(|team| self.relax_on_pool(x, loads, config, projection, team))
     }
 
     /// [`relax_projected`](Self::relax_projected), on a worker of the rayon pool.
@@ -521,7 +525,9 @@ impl SpringSystem {
         loads: &Loads<'_>,
         config: &RelaxConfig,
         mut projection: Option<&mut dyn Projection>,
+        team: &Team,
     ) -> Result<RelaxReport, SolverError> {
+        let par = Par::Team(team);
         let n = self.vertex_count();
         check_len("positions", x.len(), n)?;
         check_finite("position", x)?;
@@ -552,7 +558,7 @@ impl SpringSystem {
             None => vec![false; n],
         };
         let anchors = loads.anchors.map(|a| self.to_internal(a));
-        let frame = self.frame(external.as_deref(), anchors.as_deref());
+        let frame = self.frame(external.as_deref(), anchors.as_deref(), par);
         let mut xi = self.to_internal(x);
 
         // The inverse diagonal carries the pin flags (as its sign).
@@ -584,7 +590,7 @@ impl SpringSystem {
                 .zip(&pinned)
                 .map(|(f, p)| if *p { Vec3::ZERO } else { *f })
                 .collect();
-            dot(&free, &free).sqrt()
+            dot(par, &free, &free, &mut scalar_scratch).sqrt()
         });
         let mut r_norm = (sums.rr + chopped_rr).sqrt();
         let scale = config
@@ -616,7 +622,7 @@ impl SpringSystem {
         // d = z = w r (preconditioned steepest descent), slope = r·d.
         let mut d = vec![Vec3::ZERO; n];
         let mut rz = sums.rzr;
-        let mut slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
+        let mut slope = update_direction(par, &mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
             + contacts.constrain_direction(&mut d, &r);
         let mut iterations = 0;
         let mut stop = StopReason::Budget;
@@ -638,7 +644,7 @@ impl SpringSystem {
             }
             if slope <= 0.0 {
                 // Not a descent direction: restart with steepest (preconditioned) descent.
-                slope = update_direction(&mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
+                slope = update_direction(par, &mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
                     + contacts.constrain_direction(&mut d, &r);
                 if rz <= 0.0 || slope <= 0.0 {
                     stop = StopReason::Stalled;
@@ -690,13 +696,13 @@ impl SpringSystem {
             // fused into the direction update below.
             let step_now = projection.is_some();
             if step_now {
-                advance(&mut xi, &d, step);
+                advance(par, &mut xi, &d, step);
             }
             if let Some(p) = projection.as_deref_mut() {
                 if p.project(&mut xi, &self.order) {
                     sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
                     energy = sums.energy;
-                    rd = dot(&r, &d);
+                    rd = dot(par, &r, &d, &mut scalar_scratch);
                 }
                 contacts.refresh(p.active_contacts());
                 rd -= contacts.dot_at_contacts(&r, &d);
@@ -756,10 +762,10 @@ impl SpringSystem {
                 // `ContactSet::proportioning_direction`); the next iteration restarts.
                 contacts.proportioning_direction(&mut d, &r, &inv_diag)
             } else if step_now {
-                update_direction(&mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch)
+                update_direction(par, &mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch)
             } else {
                 let (b, scratch) = (beta as f32, &mut scalar_scratch);
-                step_and_update_direction(&mut xi, step, &mut d, &r, &inv_diag, b, scratch)
+                step_and_update_direction(par, &mut xi, step, &mut d, &r, &inv_diag, b, scratch)
             } + contacts.constrain_direction(&mut d, &r);
         }
         if stop == StopReason::Budget && converged(r_norm) {

@@ -1,0 +1,314 @@
+//! A team of rayon workers that shares a solve's parallel loops without putting threads to sleep.
+//!
+//! One relaxation iteration runs about six short parallel loops (the curvature gather, the force
+//! gather, the step, the projection's passes, the direction update) separated by short serial
+//! sections (the line search's test, the contact decisions). At 10k vertices a loop takes tens
+//! of microseconds: rayon's fork-join hands each loop to a worker that has often gone to sleep
+//! in between, and the futex round trip to wake it costs as much as the loop. A [`Team`]
+//! instead keeps its helpers for the whole solve: they wait for the next loop spinning (and
+//! running any other rayon job meanwhile, such as the projection's own parallel loops), and
+//! claim the loop's chunks from a shared counter.
+//!
+//! The results do not depend on who runs a chunk: each loop writes per-chunk outputs that are
+//! summed in chunk order afterwards, exactly as with rayon's iterators, so a solve is
+//! bit-identical for any number of threads. The leader never waits for a helper to arrive (it
+//! claims every chunk left over), only for the chunks a helper already claimed, so a team whose
+//! helpers are busy elsewhere (or a pool of one thread) still runs, on the leader alone.
+
+use std::hint::spin_loop;
+use std::marker::PhantomData;
+use std::sync::atomic::{AtomicBool, AtomicPtr, AtomicU64, AtomicUsize, Ordering};
+
+use rayon::prelude::*;
+
+/// How a loop over chunks runs: on rayon's pool (fork-join) or on a [`Team`].
+#[derive(Clone, Copy)]
+pub(crate) enum Par<'a> {
+    /// `rayon`'s parallel iterators (outside a solve).
+    Pool,
+    /// The solve's team.
+    Team(&'a Team),
+}
+
+impl Par<'_> {
+    /// Calls `f(c)` once for every chunk `c` in `0..n`, in parallel.
+    pub fn for_each(self, n: usize, f: impl Fn(usize) + Sync) {
+        match self {
+            Par::Pool => (0..n).into_par_iter().for_each(&f),
+            Par::Team(team) => team.run(n, &f),
+        }
+    }
+}
+
+/// One loop's body (on the leader's stack while the loop runs).
+struct Job<'a> {
+    f: &'a (dyn Fn(usize) + Sync),
+}
+
+/// A leader and the helpers it spawned on rayon's pool for one solve (see the module
+/// documentation). The leader calls [`Team::run`] for each loop and [`Team::finish`] at the
+/// end; each helper calls [`Team::help`] once.
+pub(crate) struct Team {
+    /// The current loop's unclaimed chunks `front..back`: `back` in the high 32 bits, `front`
+    /// in the low ones.
+    state: AtomicU64,
+    /// Chunks of the current loop finished by helpers.
+    done: AtomicUsize,
+    /// The current loop's [`Job`] (valid while any of its chunks is unclaimed or running).
+    job: AtomicPtr<Job<'static>>,
+    finished: AtomicBool,
+}
+
+const LOW: u64 = 0xffff_ffff;
+
+impl Team {
+    pub fn new() -> Self {
+        Self {
+            state: AtomicU64::new(0),
+            done: AtomicUsize::new(0),
+            job: AtomicPtr::new(std::ptr::null_mut()),
+            finished: AtomicBool::new(false),
+        }
+    }
+
+    /// Runs `f(c)` for every chunk `c` in `0..n`, on the leader and whichever helpers are
+    /// waiting; returns when all have finished. Only the leader may call it.
+    pub fn run(&self, n: usize, f: &(dyn Fn(usize) + Sync)) {
+        assert!(n < LOW as usize, "too many chunks for one loop");
+        let job = Job { f };
+        // Only the lifetime is erased: helpers dereference the pointer only after claiming a
+        // chunk (below), and this function does not return before every claimed chunk is done,
+        // so `job` outlives every use.
+        let ptr = (&raw const job).cast::<Job<'static>>().cast_mut();
+        self.done.store(0, Ordering::Relaxed);
+        self.job.store(ptr, Ordering::Relaxed);
+        // Publishes the loop (release): a helper that claims one of its chunks sees the job.
+        // The leader takes chunks from the front, the helpers from the back, so each thread
+        // mostly keeps the same vertices (in its own cache) from one loop to the next.
+        self.state.store((n as u64) << 32, Ordering::Release);
+        let mut mine = 0;
+        let mut s = self.state.load(Ordering::Relaxed);
+        while (s & LOW) < (s >> 32) {
+            match self
+                .state
+                .compare_exchange_weak(s, s + 1, Ordering::Relaxed, Ordering::Relaxed)
+            {
+                Ok(_) => {
+                    f((s & LOW) as usize);
+                    mine += 1;
+                    s = self.state.load(Ordering::Relaxed);
+                }
+                Err(now) => s = now,
+            }
+        }
+        // Every chunk is claimed; wait for the ones the helpers run.
+        let mut spins = 0u32;
+        while self.done.load(Ordering::Acquire) < n - mine {
+            spins += 1;
+            if spins < 1 << 12 {
+                spin_loop();
+            } else {
+                std::thread::yield_now();
+            }
+        }
+    }
+
+    /// A helper's loop: claims chunks of the leader's loops until [`finish`](Self::finish).
+    /// While there is nothing to claim it spins, runs other rayon jobs, and yields its CPU.
+    #[expect(
+        unsafe_code,
+        reason = "dereferences the leader's job, kept alive until this helper's chunk is done"
+    )]
+    pub fn help(&self) {
+        let mut idle = 0u32;
+        while !self.finished.load(Ordering::Acquire) {
+            let s = self.state.load(Ordering::Relaxed);
+            let (front, back) = (s & LOW, s >> 32);
+            // Claims the last unclaimed chunk; acquire pairs with the leader's release of the
+            // loop whose state this is.
+            if front < back
+                && self
+                    .state
+                    .compare_exchange_weak(
+                        s,
+                        ((back - 1) << 32) | front,
+                        Ordering::Acquire,
+                        Ordering::Relaxed,
+                    )
+                    .is_ok()
+            {
+                // SAFETY: chunk `back - 1` of the loop whose state this was is claimed and not
+                // done, so the leader is inside `run` for that loop and its job is alive; the
+                // pointer was stored before the loop was published (the acquire above).
+                let job = unsafe { &*self.job.load(Ordering::Relaxed) };
+                (job.f)((back - 1) as usize);
+                self.done.fetch_add(1, Ordering::Release);
+                idle = 0;
+                continue;
+            }
+            idle += 1;
+            if idle < 1 << 8 {
+                spin_loop();
+            } else if rayon::yield_now() != Some(rayon::Yield::Executed) && idle > 1 << 12 {
+                std::thread::yield_now();
+            }
+        }
+    }
+
+    /// Ends the team: the helpers return from [`help`](Self::help).
+    pub fn finish(&self) {
+        self.finished.store(true, Ordering::Release);
+    }
+
+    /// Runs `solve` as the leader of a team with one helper per other thread of the current
+    /// rayon pool.
+    pub fn lead<R: Send>(solve: impl FnOnce(&Team) -> R + Send) -> R {
+        let team = Team::new();
+        rayon::scope(|s| {
+            for _ in 1..rayon::current_num_threads() {
+                s.spawn(|_| team.help());
+            }
+            let result = solve(&team);
+            team.finish();
+            result
+        })
+    }
+}
+
+/// A slice split into chunks that the chunks of a parallel loop write, each its own.
+pub(crate) struct Chunked<'a, T> {
+    ptr: *mut T,
+    len: usize,
+    size: usize,
+    _borrow: PhantomData<&'a mut [T]>,
+}
+
+// SAFETY: a `Chunked` hands out disjoint chunks of a slice it borrows mutably; it is as
+// shareable as `&mut [T]` is sendable.
+#[expect(unsafe_code, reason = "disjoint chunks of a mutably borrowed slice")]
+unsafe impl<T: Send> Sync for Chunked<'_, T> {}
+#[expect(unsafe_code, reason = "disjoint chunks of a mutably borrowed slice")]
+unsafe impl<T: Send> Send for Chunked<'_, T> {}
+
+impl<'a, T> Chunked<'a, T> {
+    /// `data` in chunks of `size` elements (the last one may be shorter).
+    pub fn new(data: &'a mut [T], size: usize) -> Self {
+        Self {
+            ptr: data.as_mut_ptr(),
+            len: data.len(),
+            size,
+            _borrow: PhantomData,
+        }
+    }
+
+    /// Number of chunks.
+    pub fn chunks(&self) -> usize {
+        self.len.div_ceil(self.size)
+    }
+
+    /// Chunk `c` (empty past the end).
+    ///
+    /// # Safety
+    /// No two live references to the same chunk: within one parallel loop each chunk index is
+    /// handed to one call only ([`Par::for_each`]).
+    #[expect(unsafe_code, reason = "disjoint chunks of a mutably borrowed slice")]
+    #[expect(
+        clippy::mut_from_ref,
+        reason = "each chunk is handed out once per loop"
+    )]
+    pub unsafe fn chunk(&self, c: usize) -> &mut [T] {
+        let start = (c * self.size).min(self.len);
+        let end = (start + self.size).min(self.len);
+        // SAFETY: `start..end` lies in the borrowed slice, and the caller guarantees no other
+        // reference to this chunk is live.
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.add(start), end - start) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    use super::*;
+
+    fn pool(threads: usize) -> rayon::ThreadPool {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+    }
+
+    /// Runs `loops` loops of varying sizes (0 included) on a team and checks that every chunk of
+    /// every loop ran exactly once, with the right loop's body.
+    fn every_chunk_once(threads: usize, loops: usize) {
+        pool(threads).install(|| {
+            Team::lead(|team| {
+                for l in 0..loops {
+                    let n = (l * 7) % 23;
+                    let hits: Vec<AtomicUsize> = (0..n).map(|_| AtomicUsize::new(0)).collect();
+                    Par::Team(team).for_each(n, |c| {
+                        hits[c].fetch_add(l + 1, Ordering::Relaxed);
+                    });
+                    for (c, h) in hits.iter().enumerate() {
+                        assert_eq!(h.load(Ordering::Relaxed), l + 1, "loop {l} chunk {c}");
+                    }
+                }
+            });
+        });
+    }
+
+    #[test]
+    fn every_chunk_of_every_loop_runs_once_on_one_to_four_threads() {
+        for threads in [1, 2, 4] {
+            every_chunk_once(threads, 3_000);
+        }
+    }
+
+    #[test]
+    fn chunked_writes_reach_the_leader() {
+        pool(2).install(|| {
+            let mut data = vec![0u32; 1000];
+            Team::lead(|team| {
+                for round in 1..200u32 {
+                    let chunks = Chunked::new(&mut data, 64);
+                    Par::Team(team).for_each(chunks.chunks(), |c| {
+                        // SAFETY: each chunk index once per loop.
+                        #[expect(unsafe_code, reason = "the test of `Chunked`")]
+                        let chunk = unsafe { chunks.chunk(c) };
+                        for v in chunk {
+                            *v += round;
+                        }
+                    });
+                    // Every element saw every round so far (the helpers' writes are visible).
+                    let expected = round * (round + 1) / 2;
+                    assert!(data.iter().all(|&v| v == expected), "round {round}");
+                }
+            });
+        });
+    }
+
+    #[test]
+    fn teams_nested_in_a_parallel_loop_all_finish() {
+        // Four solves in parallel on two threads: a helper may run inside another team's wait
+        // (work stealing); nobody waits for a helper to arrive, so all finish.
+        pool(2).install(|| {
+            let sums: Vec<usize> = (0..4usize)
+                .into_par_iter()
+                .map(|t| {
+                    Team::lead(|team| {
+                        let total = AtomicUsize::new(0);
+                        for _ in 0..500 {
+                            Par::Team(team).for_each(8, |c| {
+                                total.fetch_add(c + t, Ordering::Relaxed);
+                            });
+                        }
+                        total.load(Ordering::Relaxed)
+                    })
+                })
+                .collect();
+            for (t, s) in sums.iter().enumerate() {
+                assert_eq!(*s, 500 * (28 + 8 * t));
+            }
+        });
+    }
+}
