@@ -144,20 +144,25 @@ impl Frame<'_> {
     /// there is none), `-0.0` for a `pinned` vertex: the sign is the pin flag the force gather
     /// reads, and the weight is zero either way.
     pub fn inverse_diagonal(&self, pinned: &[bool]) -> Vec<f32> {
-        (0..pinned.len())
-            .into_par_iter()
-            .with_min_len(CHUNK)
-            .map(|i| {
-                if pinned[i] {
-                    return -0.0;
+        let mut inv = vec![0.0f32; pinned.len()];
+        inv.par_chunks_mut(CHUNK).enumerate().for_each(|(c, inv)| {
+            for (j, inv) in inv.chunks_mut(LANES).enumerate() {
+                let first = c * CHUNK + j * LANES;
+                let sums = self.sell.stiffness_sums(first / LANES);
+                for (lane, (w, mut diag)) in inv.iter_mut().zip(sums).enumerate() {
+                    let i = first + lane;
+                    *w = if pinned[i] {
+                        -0.0
+                    } else {
+                        if let Some(a) = self.anchors {
+                            diag += a[i].k_normal.max(a[i].k_tangent);
+                        }
+                        if diag > 0.0 { 1.0 / diag } else { 0.0 }
+                    };
                 }
-                let mut diag: f32 = self.sell.springs_of(i).map(|s| s.k).sum();
-                if let Some(a) = self.anchors {
-                    diag += a[i].k_normal.max(a[i].k_tangent);
-                }
-                if diag > 0.0 { 1.0 / diag } else { 0.0 }
-            })
-            .collect()
+            }
+        });
+        inv
     }
 }
 

@@ -458,6 +458,40 @@ impl Sell {
             })
     }
 
+    /// The stiffness summed over each vertex's springs, for the eight vertices of slice `s` (one
+    /// per lane; lanes past the last vertex mean nothing): the same f32 sums, in the same order,
+    /// as [`springs_of`](Self::springs_of), read slice by slice (~10x faster than per vertex).
+    pub fn stiffness_sums(&self, s: usize) -> [f32; LANES] {
+        let mut sums = [0.0f32; LANES];
+        let (start, upper) = (self.start[s] as usize, self.upper_entries(s));
+        let far = self.far_of(s);
+        let refs = self.refs_of(s);
+        let divisor = if self.tripled(s) { 3 } else { 1 };
+        let base = (s * LANES) as u32;
+        for e in self.entries(s) {
+            let r = e - start;
+            let lane = r % LANES;
+            let other = match far {
+                Some(far) => far[r],
+                None => base.wrapping_add_signed(i32::from(self.near[e]) / divisor),
+            };
+            if other == base + lane as u32 {
+                continue;
+            }
+            let pair = if upper.contains(&e) {
+                self.own_pair(s, e)
+            } else {
+                let r = r - lane + PAIR_LANES[lane];
+                match refs {
+                    Refs::Near { refs, base } => (base + refs[r] as isize) as usize,
+                    Refs::Far { refs } => refs[r] as usize,
+                }
+            };
+            sums[lane] += self.kr[pair][0].abs();
+        }
+        sums
+    }
+
     /// Back to CSR: `(offsets, springs)`.
     pub fn to_csr(&self) -> (Vec<u32>, Vec<Spring>) {
         let mut offsets = Vec::with_capacity(self.n + 1);
@@ -536,6 +570,16 @@ pub(super) mod tests {
                     let k = sell.kr[sell.pair(s, e)][0];
                     let copy = upper.contains(&e) && j < i;
                     assert_eq!(k.is_sign_negative(), copy, "slice {s} entry {e}");
+                }
+            }
+            // The slice's stiffness sums are its vertices' springs summed in their CSR order,
+            // bit for bit.
+            for (lane, sum) in sell.stiffness_sums(s).into_iter().enumerate() {
+                let i = s * LANES + lane;
+                if i < sell.n {
+                    let own = &springs[offsets[i] as usize..offsets[i + 1] as usize];
+                    let expected = own.iter().fold(0.0f32, |a, sp| a + sp.k);
+                    assert_eq!(sum.to_bits(), expected.to_bits(), "vertex {i}");
                 }
             }
         }
