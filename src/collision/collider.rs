@@ -15,6 +15,7 @@ use super::cache::{PATCH, Patch};
 use crate::mesh::TriMesh;
 use parts::Parts;
 
+mod lean;
 mod parts;
 #[cfg(test)]
 mod tests;
@@ -834,13 +835,28 @@ impl MeshShape {
         patch: &mut Patch,
         slack_m: f32,
     ) -> Option<SurfaceProjection> {
+        self.project_on_patch_with(p, patch, slack_m, lean::available())
+    }
+
+    /// [`project_on_patch`](Self::project_on_patch), with the lean distances eight at a time
+    /// when `wide` (and AVX2 is there), else one at a time: the same answer either way.
+    #[inline]
+    fn project_on_patch_with(
+        &self,
+        p: Vec3,
+        patch: &mut Patch,
+        slack_m: f32,
+        wide: bool,
+    ) -> Option<SurfaceProjection> {
         let len = patch.len as usize;
         // Lean distances of the patch at `p`, each evaluated at most once (NaN: not yet; the
-        // ones never evaluated are farther than the answer).
+        // ones never evaluated are farther than the answer). With AVX2 they come eight at a
+        // time, the same values bit for bit ([`lean`]), so every decision below is the same.
         let mut lean = [f32::NAN; PATCH];
+        let mut batches = Batches::new(self, &*patch, p, wide);
         // The last answer first: often it alone is provably the closest.
         let b = patch.best as usize;
-        lean[b] = self.triangle_distance(patch.tris[b], p);
+        lean[b] = batches.get(b);
         let mut best = (lean[b], b);
         let others = if b == 0 {
             patch.dist.get(1).copied().filter(|_| len > 1)
@@ -857,7 +873,7 @@ impl MeshShape {
                 if k == b {
                     continue;
                 }
-                *l = self.triangle_distance(patch.tris[k], p);
+                *l = batches.get(k);
                 if *l < best.0 {
                     best = (*l, k);
                 }
@@ -873,7 +889,7 @@ impl MeshShape {
         for (k, l) in lean.iter_mut().enumerate().take(len) {
             if l.is_nan() {
                 *l = if patch.dist[k] - slack_m <= reach {
-                    self.triangle_distance(patch.tris[k], p)
+                    batches.get(k)
                 } else {
                     f32::INFINITY
                 };
@@ -883,6 +899,83 @@ impl MeshShape {
             self.parry_choice(p, (0..len).map(|k| (lean[k], patch.tris[k])))?;
         patch.best = (0..len).position(|k| patch.tris[k] == t).unwrap_or(0) as u8;
         Some(self.finish(p, t, proj.point, location))
+    }
+}
+
+/// The lean distances of a patch's triangles at one point, computed on first use: eight at a
+/// time with AVX2 ([`lean::distances`]), else one at a time. Either way each is
+/// [`MeshShape::triangle_distance`] bit for bit.
+struct Batches<'a> {
+    mesh: &'a MeshShape,
+    patch: &'a Patch,
+    p: Vec3,
+    /// Whether the eight-lane path is available.
+    wide: bool,
+    /// Bit `i` set: batch `i` (triangles `LANES i ..`) is in `values`.
+    done: u8,
+    values: [f32; PATCH.next_multiple_of(lean::LANES)],
+}
+
+impl<'a> Batches<'a> {
+    /// `wide`: use the eight-lane path where the CPU has it.
+    #[inline]
+    fn new(mesh: &'a MeshShape, patch: &'a Patch, p: Vec3, wide: bool) -> Self {
+        Self {
+            mesh,
+            patch,
+            p,
+            wide,
+            done: 0,
+            values: [f32::NAN; PATCH.next_multiple_of(lean::LANES)],
+        }
+    }
+
+    /// The lean distance to the patch's triangle `k` (`k < len`).
+    #[inline(always)]
+    fn get(&mut self, k: usize) -> f32 {
+        if self.done >> (k / lean::LANES) & 1 == 0 {
+            return self.fill(k);
+        }
+        self.values[k]
+    }
+
+    /// Computes the batch holding triangle `k` (or `k` alone without the wide path) and
+    /// returns its distance.
+    #[inline(never)]
+    fn fill(&mut self, k: usize) -> f32 {
+        let (tris, len) = (&self.patch.tris, self.patch.len as usize);
+        if self.wide {
+            let batch = k / lean::LANES;
+            let start = batch * lean::LANES;
+            // Lanes past the patch hold stale or missing triangles: their values are never
+            // read, and they may be out of range (reported in `bad`).
+            let mut lanes = [tris[k]; lean::LANES];
+            if start + lean::LANES <= PATCH {
+                lanes = tris[start..start + lean::LANES]
+                    .try_into()
+                    .expect("a whole batch");
+            } else {
+                for (l, &t) in lanes.iter_mut().zip(&tris[start..]) {
+                    *l = t;
+                }
+            }
+            let used = (len - start).min(lean::LANES);
+            if let Some((d, bad)) =
+                lean::distances(&self.mesh.indices, &self.mesh.live, &lanes, self.p)
+                && bad & ((1 << used) - 1) == 0
+            {
+                let values: &mut [f32; lean::LANES] = (&mut self.values
+                    [start..start + lean::LANES])
+                    .try_into()
+                    .expect("whole batches");
+                *values = d;
+                self.done |= 1 << batch;
+                return d[k - start];
+            }
+            // An index out of range: the scalar path (which reports it).
+            self.wide = false;
+        }
+        self.mesh.triangle_distance(tris[k], self.p)
     }
 }
 
