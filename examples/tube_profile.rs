@@ -42,8 +42,8 @@ fn main() {
         let t = run.step(&work).unwrap();
         let d = run.contact.diagnostics().clone();
         iterations += t.iterations as u64;
-        for p in &run.x {
-            p.to_array().map(|c| mix(u64::from(c.to_bits())));
+        for c in run.x.iter().flat_map(|p| p.to_array()) {
+            mix(u64::from(c.to_bits()));
         }
         for c in [
             d.contacts,
