@@ -880,10 +880,14 @@ impl MeshShape {
             Some(patch.dist[0])
         }
         .unwrap_or(f32::INFINITY);
+        // Entries past `evaluated` (other than `b`) are never evaluated.
+        let mut evaluated = 0;
         if best.0 >= others - slack_m {
+            evaluated = len;
             for (k, l) in lean.iter_mut().enumerate().take(len) {
                 // Sorted by their distance when built: no later triangle can come closer.
                 if patch.dist[k] - slack_m > best.0 {
+                    evaluated = k;
                     break;
                 }
                 if k == b {
@@ -900,19 +904,22 @@ impl MeshShape {
         if !certified {
             return None;
         }
-        // The ties within rounding of the answer need their lean distance.
+        // The ties within rounding of the answer need their lean distance: those whose bound
+        // is within `reach`, a prefix of the patch (sorted by bound). The others, unevaluated
+        // (NaN), are farther than `reach` and never candidates below, as if infinitely far;
+        // nor are the evaluated ones past the prefix that `parry_choice` skips (`hi`): every
+        // entry from `hi` on is NaN.
         let reach = best.0 + TIE_ROUNDING * (p.abs().max_element() + best.0);
-        for (k, l) in lean.iter_mut().enumerate().take(len) {
-            if l.is_nan() {
-                *l = if patch.dist[k] - slack_m <= reach {
-                    batches.get(k)
-                } else {
-                    f32::INFINITY
-                };
+        let mut within = 0;
+        while within < len && patch.dist[within] - slack_m <= reach {
+            if lean[within].is_nan() {
+                lean[within] = batches.get(within);
             }
+            within += 1;
         }
+        let hi = within.max(evaluated).max(b + 1);
         let (t, point, location, cross) =
-            self.parry_choice(p, (0..len).map(|k| (lean[k], patch.tris[k])))?;
+            self.parry_choice(p, (0..hi).map(|k| (lean[k], patch.tris[k])))?;
         patch.best = (0..len).position(|k| patch.tris[k] == t).unwrap_or(0) as u8;
         Some(self.finish(p, t, point, location, cross))
     }
