@@ -706,9 +706,8 @@ impl MeshShape {
         oriented(p, point, feature_normal, t, coords)
     }
 
-    /// parry's projection of `p` on triangle `t` ([`triangle_projection`](Self::
-    /// triangle_projection)) bit for bit, as its distance, point and location, and the
-    /// triangle's `(b − a) × (c − a)` when computed on the way (see [`exact`]).
+    /// parry's projection of `p` on triangle `t` ([`Self::triangle_projection`]) bit for bit,
+    /// as its distance, point and location, and the triangle's `(b − a) × (c − a)` when computed on the way (see [`exact`]).
     #[inline]
     fn triangle_point(&self, t: u32, p: Vec3) -> (f32, Vec3, TrianglePointLocation, Option<Vec3>) {
         let [a, b, c] = self.corners(t);
