@@ -15,7 +15,6 @@ use super::cache::{PATCH, Patch};
 use crate::mesh::TriMesh;
 use parts::Parts;
 
-mod exact;
 mod lean;
 mod parts;
 #[cfg(test)]
@@ -676,29 +675,25 @@ impl MeshShape {
                 coords: Vec3::new(1.0, 0.0, 0.0),
             };
         };
-        self.finish(p, t, proj.point, location, None)
+        self.finish(p, t, proj.point, location)
     }
 
     /// The oriented projection of `p` once its closest triangle `t` is known.
-    /// `cross`: `(b − a) × (c − a)` of triangle `t` when already known (its face normal's
-    /// direction, see [`exact`]).
     fn finish(
         &self,
         p: Vec3,
         t: u32,
         point: Vec3,
         location: TrianglePointLocation,
-        cross: Option<Vec3>,
     ) -> SurfaceProjection {
         let idx = self.indices[t as usize];
-        let own = || cross.map_or_else(|| self.face_normal(t), Vec3::normalize_or_zero);
         let feature_normal = match location {
             TrianglePointLocation::OnEdge(i, _) => {
                 let other = self.across[t as usize][i as usize];
-                (own() + self.face_normal(other)).normalize_or_zero()
+                (self.face_normal(t) + self.face_normal(other)).normalize_or_zero()
             }
             TrianglePointLocation::OnVertex(i) => self.vertex_normal(idx[i as usize]),
-            _ => own(),
+            _ => self.face_normal(t),
         };
         let coords = location
             .barycentric_coordinates()
@@ -706,18 +701,12 @@ impl MeshShape {
         oriented(p, point, feature_normal, t, coords)
     }
 
-    /// parry's projection of `p` on triangle `t` ([`Self::triangle_projection`]) bit for bit,
-    /// as its distance, point and location, and the triangle's `(b − a) × (c − a)` when computed on the way (see [`exact`]).
+    /// parry's projection of `p` on triangle `t` ([`Self::triangle_projection`]): its distance,
+    /// point and location.
     #[inline]
-    fn triangle_point(&self, t: u32, p: Vec3) -> (f32, Vec3, TrianglePointLocation, Option<Vec3>) {
-        let [a, b, c] = self.corners(t);
-        match exact::project(a, b, c, p) {
-            Some((point, location, cross)) => ((point - p).length(), point, location, cross),
-            None => {
-                let (d, proj, location) = self.triangle_projection(t, p);
-                (d, proj.point, location, None)
-            }
-        }
+    fn triangle_point(&self, t: u32, p: Vec3) -> (f32, Vec3, TrianglePointLocation) {
+        let (d, proj, location) = self.triangle_projection(t, p);
+        (d, proj.point, location)
     }
 
     /// Distance from `p` to triangle `t` (lean closest-point arithmetic, without parry's
@@ -735,22 +724,22 @@ impl MeshShape {
         &self,
         p: Vec3,
         candidates: impl Iterator<Item = (f32, u32)> + Clone,
-    ) -> Option<(u32, Vec3, TrianglePointLocation, Option<Vec3>)> {
+    ) -> Option<(u32, Vec3, TrianglePointLocation)> {
         let lean_min = candidates
             .clone()
             .map(|c| c.0)
             .fold(f32::INFINITY, f32::min);
         let eps = TIE_ROUNDING * (p.abs().max_element() + lean_min);
-        let mut best: Option<(f32, u32, Vec3, TrianglePointLocation, Option<Vec3>)> = None;
+        let mut best: Option<(f32, u32, Vec3, TrianglePointLocation)> = None;
         for (d, t) in candidates {
             if d <= lean_min + eps {
-                let (dp, point, location, cross) = self.triangle_point(t, p);
+                let (dp, point, location) = self.triangle_point(t, p);
                 if best.as_ref().is_none_or(|b| dp < b.0) {
-                    best = Some((dp, t, point, location, cross));
+                    best = Some((dp, t, point, location));
                 }
             }
         }
-        best.map(|(_, t, point, location, cross)| (t, point, location, cross))
+        best.map(|(_, t, point, location)| (t, point, location))
     }
 
     /// An exact projection that also fills `patch` with the [`PATCH`] triangles nearest to `p`
@@ -833,12 +822,12 @@ impl MeshShape {
         } else {
             bound
         };
-        let Some((t, point, location, cross)) = self.parry_choice(p, list[..kept].iter().copied())
+        let Some((t, point, location)) = self.parry_choice(p, list[..kept].iter().copied())
         else {
             return self.project(p, hint);
         };
         patch.best = list[..kept].iter().position(|c| c.1 == t).unwrap_or(0) as u8;
-        self.finish(p, t, point, location, cross)
+        self.finish(p, t, point, location)
     }
 
     /// The exact projection from the patch alone, when its certificate still holds for a
@@ -917,10 +906,10 @@ impl MeshShape {
             within += 1;
         }
         let hi = within.max(evaluated).max(b + 1);
-        let (t, point, location, cross) =
+        let (t, point, location) =
             self.parry_choice(p, (0..hi).map(|k| (lean[k], patch.tris[k])))?;
         patch.best = (0..len).position(|k| patch.tris[k] == t).unwrap_or(0) as u8;
-        Some(self.finish(p, t, point, location, cross))
+        Some(self.finish(p, t, point, location))
     }
 }
 
