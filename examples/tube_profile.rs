@@ -1,4 +1,9 @@
 //! Probe: run tube-10k arm frames for profiling.
+//!
+//! `cargo run --release --example tube_profile -- [vertices] [frames] [steady passes]`: per
+//! frame the plan's time (on a copy), the frame's time, iterations and contact counters; then
+//! `steady passes` (default 200; 0: none) projections of the last state, timed. Profile the
+//! frames' projections with 0 steady passes: the steady ones repeat the same positions.
 use std::time::Instant;
 
 use dermis::bench::arm::{ArmRun, ArmWorkload};
@@ -8,6 +13,12 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     let n: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(10_000);
     let frames: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(10);
+    let reps: usize = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(200);
+    // A hash of every frame's positions and contact counters: two builds answer identically
+    // when their hashes agree (FNV-1a over the bits).
+    let mut hash = 0xcbf2_9ce4_8422_2325u64;
+    let mut mix = |v: u64| hash = (hash ^ v).wrapping_mul(0x100_0000_01b3);
+    let mut iterations = 0u64;
     let work = ArmWorkload::new("tube", n, (126, 200), dermis::bench::arm::CLIP_FRAMES);
     let mut run = ArmRun::new(&work, 12, 500).unwrap();
     for _ in 0..frames {
@@ -30,6 +41,22 @@ fn main() {
         let t0 = Instant::now();
         let t = run.step(&work).unwrap();
         let d = run.contact.diagnostics().clone();
+        iterations += t.iterations as u64;
+        for c in run.x.iter().flat_map(|p| p.to_array()) {
+            mix(u64::from(c.to_bits()));
+        }
+        for c in [
+            d.contacts,
+            d.exact_queries,
+            d.certified_queries,
+            d.skipped_bound,
+            d.skipped_aabb,
+            d.moved,
+            d.passes,
+        ] {
+            mix(c);
+        }
+        d.unresolved.iter().for_each(|&u| mix(u64::from(u)));
         println!(
             "{:.1} ms its {} sub {} passes {} coll {:.1} ms conv {} | contacts {} exact {} cert {} skipbound {} skipaabb {} moved {}",
             t0.elapsed().as_secs_f64() * 1e3,
@@ -46,12 +73,15 @@ fn main() {
             d.moved
         );
     }
+    println!("frames {frames}: iterations {iterations}, hash {hash:016x}");
+    if reps == 0 {
+        return;
+    }
     // One projection pass on the last frame's state, in the solver's order, repeated.
     let order = work.tube.system.order().to_vec();
     let mut x: Vec<_> = order.iter().map(|&o| run.x[o as usize]).collect();
     let mut contact = run.contact.clone();
     contact.project(&mut x, &order);
-    let reps = 200;
     let t0 = Instant::now();
     rayon::scope(|_| {
         for _ in 0..reps {

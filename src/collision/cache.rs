@@ -44,7 +44,7 @@ pub(crate) struct Patch {
 }
 
 impl Patch {
-    const NEW: Self = Self {
+    pub(crate) const NEW: Self = Self {
         tris: [NONE; PATCH],
         dist: [0.0; PATCH],
         gap: 0.0,

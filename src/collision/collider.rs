@@ -15,6 +15,7 @@ use super::cache::{PATCH, Patch};
 use crate::mesh::TriMesh;
 use parts::Parts;
 
+mod lean;
 mod parts;
 #[cfg(test)]
 mod tests;
@@ -700,6 +701,14 @@ impl MeshShape {
         oriented(p, point, feature_normal, t, coords)
     }
 
+    /// parry's projection of `p` on triangle `t` ([`Self::triangle_projection`]): its distance,
+    /// point and location.
+    #[inline]
+    fn triangle_point(&self, t: u32, p: Vec3) -> (f32, Vec3, TrianglePointLocation) {
+        let (d, proj, location) = self.triangle_projection(t, p);
+        (d, proj.point, location)
+    }
+
     /// Distance from `p` to triangle `t` (lean closest-point arithmetic, without parry's
     /// robustness checks; equal to parry's distance up to rounding).
     #[inline]
@@ -715,27 +724,22 @@ impl MeshShape {
         &self,
         p: Vec3,
         candidates: impl Iterator<Item = (f32, u32)> + Clone,
-    ) -> Option<(u32, parry3d::query::PointProjection, TrianglePointLocation)> {
+    ) -> Option<(u32, Vec3, TrianglePointLocation)> {
         let lean_min = candidates
             .clone()
             .map(|c| c.0)
             .fold(f32::INFINITY, f32::min);
         let eps = TIE_ROUNDING * (p.abs().max_element() + lean_min);
-        let mut best: Option<(
-            f32,
-            u32,
-            parry3d::query::PointProjection,
-            TrianglePointLocation,
-        )> = None;
+        let mut best: Option<(f32, u32, Vec3, TrianglePointLocation)> = None;
         for (d, t) in candidates {
             if d <= lean_min + eps {
-                let (dp, proj, location) = self.triangle_projection(t, p);
+                let (dp, point, location) = self.triangle_point(t, p);
                 if best.as_ref().is_none_or(|b| dp < b.0) {
-                    best = Some((dp, t, proj, location));
+                    best = Some((dp, t, point, location));
                 }
             }
         }
-        best.map(|(_, t, proj, location)| (t, proj, location))
+        best.map(|(_, t, point, location)| (t, point, location))
     }
 
     /// An exact projection that also fills `patch` with the [`PATCH`] triangles nearest to `p`
@@ -818,11 +822,12 @@ impl MeshShape {
         } else {
             bound
         };
-        let Some((t, proj, location)) = self.parry_choice(p, list[..kept].iter().copied()) else {
+        let Some((t, point, location)) = self.parry_choice(p, list[..kept].iter().copied())
+        else {
             return self.project(p, hint);
         };
         patch.best = list[..kept].iter().position(|c| c.1 == t).unwrap_or(0) as u8;
-        self.finish(p, t, proj.point, location)
+        self.finish(p, t, point, location)
     }
 
     /// The exact projection from the patch alone, when its certificate still holds for a
@@ -834,13 +839,28 @@ impl MeshShape {
         patch: &mut Patch,
         slack_m: f32,
     ) -> Option<SurfaceProjection> {
+        self.project_on_patch_with(p, patch, slack_m, lean::available())
+    }
+
+    /// [`project_on_patch`](Self::project_on_patch), with the lean distances eight at a time
+    /// when `wide` (and AVX2 is there), else one at a time: the same answer either way.
+    #[inline]
+    fn project_on_patch_with(
+        &self,
+        p: Vec3,
+        patch: &mut Patch,
+        slack_m: f32,
+        wide: bool,
+    ) -> Option<SurfaceProjection> {
         let len = patch.len as usize;
         // Lean distances of the patch at `p`, each evaluated at most once (NaN: not yet; the
-        // ones never evaluated are farther than the answer).
+        // ones never evaluated are farther than the answer). With AVX2 they come eight at a
+        // time, the same values bit for bit ([`lean`]), so every decision below is the same.
         let mut lean = [f32::NAN; PATCH];
+        let mut batches = Batches::new(self, &*patch, p, wide);
         // The last answer first: often it alone is provably the closest.
         let b = patch.best as usize;
-        lean[b] = self.triangle_distance(patch.tris[b], p);
+        lean[b] = batches.get(b);
         let mut best = (lean[b], b);
         let others = if b == 0 {
             patch.dist.get(1).copied().filter(|_| len > 1)
@@ -848,16 +868,20 @@ impl MeshShape {
             Some(patch.dist[0])
         }
         .unwrap_or(f32::INFINITY);
+        // Entries past `evaluated` (other than `b`) are never evaluated.
+        let mut evaluated = 0;
         if best.0 >= others - slack_m {
+            evaluated = len;
             for (k, l) in lean.iter_mut().enumerate().take(len) {
                 // Sorted by their distance when built: no later triangle can come closer.
                 if patch.dist[k] - slack_m > best.0 {
+                    evaluated = k;
                     break;
                 }
                 if k == b {
                     continue;
                 }
-                *l = self.triangle_distance(patch.tris[k], p);
+                *l = batches.get(k);
                 if *l < best.0 {
                     best = (*l, k);
                 }
@@ -868,21 +892,101 @@ impl MeshShape {
         if !certified {
             return None;
         }
-        // The ties within rounding of the answer need their lean distance.
+        // The ties within rounding of the answer need their lean distance: those whose bound
+        // is within `reach`, a prefix of the patch (sorted by bound). The others, unevaluated
+        // (NaN), are farther than `reach` and never candidates below, as if infinitely far;
+        // nor are the evaluated ones past the prefix that `parry_choice` skips (`hi`): every
+        // entry from `hi` on is NaN.
         let reach = best.0 + TIE_ROUNDING * (p.abs().max_element() + best.0);
-        for (k, l) in lean.iter_mut().enumerate().take(len) {
-            if l.is_nan() {
-                *l = if patch.dist[k] - slack_m <= reach {
-                    self.triangle_distance(patch.tris[k], p)
-                } else {
-                    f32::INFINITY
-                };
+        let mut within = 0;
+        while within < len && patch.dist[within] - slack_m <= reach {
+            if lean[within].is_nan() {
+                lean[within] = batches.get(within);
             }
+            within += 1;
         }
-        let (t, proj, location) =
-            self.parry_choice(p, (0..len).map(|k| (lean[k], patch.tris[k])))?;
+        let hi = within.max(evaluated).max(b + 1);
+        let (t, point, location) =
+            self.parry_choice(p, (0..hi).map(|k| (lean[k], patch.tris[k])))?;
         patch.best = (0..len).position(|k| patch.tris[k] == t).unwrap_or(0) as u8;
-        Some(self.finish(p, t, proj.point, location))
+        Some(self.finish(p, t, point, location))
+    }
+}
+
+/// The lean distances of a patch's triangles at one point, computed on first use: eight at a
+/// time with AVX2 ([`lean::distances`]), else one at a time. Either way each is
+/// [`MeshShape::triangle_distance`] bit for bit.
+struct Batches<'a> {
+    mesh: &'a MeshShape,
+    patch: &'a Patch,
+    p: Vec3,
+    /// Whether the eight-lane path is available.
+    wide: bool,
+    /// Bit `i` set: batch `i` (triangles `LANES i ..`) is in `values`.
+    done: u8,
+    values: [f32; PATCH.next_multiple_of(lean::LANES)],
+}
+
+impl<'a> Batches<'a> {
+    /// `wide`: use the eight-lane path where the CPU has it.
+    #[inline]
+    fn new(mesh: &'a MeshShape, patch: &'a Patch, p: Vec3, wide: bool) -> Self {
+        Self {
+            mesh,
+            patch,
+            p,
+            wide,
+            done: 0,
+            values: [f32::NAN; PATCH.next_multiple_of(lean::LANES)],
+        }
+    }
+
+    /// The lean distance to the patch's triangle `k` (`k < len`).
+    #[inline(always)]
+    fn get(&mut self, k: usize) -> f32 {
+        if self.done >> (k / lean::LANES) & 1 == 0 {
+            return self.fill(k);
+        }
+        self.values[k]
+    }
+
+    /// Computes the batch holding triangle `k` (or `k` alone without the wide path) and
+    /// returns its distance.
+    #[inline(never)]
+    fn fill(&mut self, k: usize) -> f32 {
+        let (tris, len) = (&self.patch.tris, self.patch.len as usize);
+        if self.wide {
+            let batch = k / lean::LANES;
+            let start = batch * lean::LANES;
+            // Lanes past the patch hold stale or missing triangles: their values are never
+            // read, and they may be out of range (reported in `bad`).
+            let mut lanes = [tris[k]; lean::LANES];
+            if start + lean::LANES <= PATCH {
+                lanes = tris[start..start + lean::LANES]
+                    .try_into()
+                    .expect("a whole batch");
+            } else {
+                for (l, &t) in lanes.iter_mut().zip(&tris[start..]) {
+                    *l = t;
+                }
+            }
+            let used = (len - start).min(lean::LANES);
+            if let Some((d, bad)) =
+                lean::distances(&self.mesh.indices, &self.mesh.live, &lanes, self.p)
+                && bad & ((1 << used) - 1) == 0
+            {
+                let values: &mut [f32; lean::LANES] = (&mut self.values
+                    [start..start + lean::LANES])
+                    .try_into()
+                    .expect("whole batches");
+                *values = d;
+                self.done |= 1 << batch;
+                return d[k - start];
+            }
+            // An index out of range: the scalar path (which reports it).
+            self.wide = false;
+        }
+        self.mesh.triangle_distance(tris[k], self.p)
     }
 }
 

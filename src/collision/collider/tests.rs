@@ -364,3 +364,86 @@ fn split_refresh_rejects_bad_vertices_unchanged() {
     assert_eq!(bits(&before.2), bits(&after.2));
     assert_eq!(mesh(&c).current, deform(&v, 0.5));
 }
+
+/// The certified patch query with its lean distances eight at a time (AVX2) answers bit for bit
+/// as with them one at a time, and as parry's search of the whole mesh: over a deforming
+/// muscle, for points near the surface that moved from where their patch was built by up to
+/// a few millimetres (slack large enough that triangles past the first eight are compared), and
+/// for points whose certificate fails (both paths fall back to a search: `None`).
+#[test]
+fn patch_answers_eight_at_a_time_equal_one_at_a_time_and_parry() {
+    let (rest, t) = muscle(24, 40);
+    let mut col = ColliderMesh::from_mesh(rest.clone(), t).unwrap();
+    col.set_vertices(&deform(&rest, 0.7)).unwrap();
+    let m = mesh(&col);
+    let parry = col.parry_mesh().unwrap();
+    let mut rng = Lcg(23);
+    let (mut certified, mut failed, mut second_batch) = (0, 0, 0);
+    for k in 0..3000 {
+        let v = m.live[(k * 7919) % m.live.len()];
+        let at = v + v.normalize_or_zero() * 0.002 + rng.point(0.002);
+        let mut built = Patch::NEW;
+        m.project_and_certify(at, NONE, 0.01, &mut built);
+        assert_eq!(built.len as usize, PATCH, "probe {k}: a full patch");
+        let moved = [1e-5, 3e-4, 2e-3, 8e-3][k % 4];
+        let p = at + rng.point(moved);
+        let slack = p.distance(at) * (1.0 + 1e-6) + 1e-5 * (p.abs().max_element() + 0.1);
+        let (mut wide, mut narrow) = (built, built);
+        let a = m.project_on_patch_with(p, &mut wide, slack, true);
+        let b = m.project_on_patch_with(p, &mut narrow, slack, false);
+        assert_eq!(a.map(|r| bits(&r)), b.map(|r| bits(&r)), "probe {k}");
+        assert_eq!(wide.best, narrow.best, "probe {k}");
+        let Some(got) = a else {
+            failed += 1;
+            continue;
+        };
+        certified += 1;
+        // The answer's triangle is (one of) the closest of the whole mesh: parry's distance,
+        // and parry's point on that triangle.
+        let want = parry.project_local_point(p, false);
+        let dist = want.point.distance(p);
+        assert!(
+            (got.signed_distance.abs() - dist).abs() <= 1e-6 * (1.0 + dist),
+            "probe {k}: {} against parry {dist}",
+            got.signed_distance
+        );
+        let (_, own, _) = m.triangle_projection(got.part, p);
+        assert_eq!(got.point, own.point, "probe {k}");
+        // Triangles past the first eight were within the slack of the answer.
+        if built.dist[lean::LANES] - slack <= dist {
+            second_batch += 1;
+        }
+    }
+    assert!(certified > 1000 && failed > 100, "{certified} / {failed}");
+    assert!(second_batch > 100, "{second_batch}");
+}
+
+/// Lanes past a short patch may hold stale or missing triangles (out of range): they are never
+/// read, and the distances of the patch's own triangles are the scalar ones.
+#[test]
+fn short_patches_ignore_the_lanes_past_their_end() {
+    let (rest, t) = muscle(12, 16);
+    let col = ColliderMesh::from_mesh(rest, t).unwrap();
+    let m = mesh(&col);
+    let mut patch = Patch::NEW;
+    let p = m.live[5] * 1.05;
+    m.project_and_certify(p, NONE, 0.01, &mut patch);
+    patch.len = 3;
+    for (k, t) in patch.tris.iter_mut().enumerate().skip(3) {
+        *t = if k % 2 == 0 {
+            NONE
+        } else {
+            m.indices.len() as u32 + k as u32
+        };
+    }
+    let mut batches = Batches::new(m, &patch, p, true);
+    for k in 0..3 {
+        assert_eq!(
+            batches.get(k).to_bits(),
+            m.triangle_distance(patch.tris[k], p).to_bits(),
+            "triangle {k}"
+        );
+    }
+    // The wide path stayed on when the CPU has it (the bad lanes were past the end).
+    assert_eq!(batches.wide, lean::available());
+}
