@@ -822,8 +822,7 @@ impl MeshShape {
         } else {
             bound
         };
-        let Some((t, point, location)) = self.parry_choice(p, list[..kept].iter().copied())
-        else {
+        let Some((t, point, location)) = self.parry_choice(p, list[..kept].iter().copied()) else {
             return self.project(p, hint);
         };
         patch.best = list[..kept].iter().position(|c| c.1 == t).unwrap_or(0) as u8;
