@@ -199,24 +199,8 @@ mod avx2 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::collision::collider::tests::Lcg;
     use crate::collision::collider::triangle_distance_sq;
-
-    /// A small deterministic generator (64-bit LCG).
-    struct Lcg(u64);
-
-    impl Lcg {
-        fn next(&mut self) -> f32 {
-            self.0 = self
-                .0
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (self.0 >> 40) as f32 / (1u64 << 24) as f32
-        }
-
-        fn point(&mut self, s: f32) -> Vec3 {
-            Vec3::new(self.next(), self.next(), self.next()) * (2.0 * s) - Vec3::splat(s)
-        }
-    }
 
     /// Every lane equals the scalar lean distance bit for bit, in every Voronoi region
     /// (points far around small triangles, on their planes, at their corners and edges),

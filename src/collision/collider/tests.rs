@@ -9,12 +9,12 @@ use super::*;
 use crate::collision::cache::{Answer, Slot};
 use crate::collision::shapes::ellipsoid;
 
-/// A small deterministic generator (64-bit LCG).
-struct Lcg(u64);
+/// A small deterministic generator (64-bit LCG; also used by the eight-lane distances' tests).
+pub(super) struct Lcg(pub(super) u64);
 
 impl Lcg {
     /// Uniform in [0, 1).
-    fn next(&mut self) -> f32 {
+    pub(super) fn next(&mut self) -> f32 {
         self.0 = self
             .0
             .wrapping_mul(6_364_136_223_846_793_005)
@@ -23,7 +23,7 @@ impl Lcg {
     }
 
     /// Uniform in the cube [-s, s]³.
-    fn point(&mut self, s: f32) -> Vec3 {
+    pub(super) fn point(&mut self, s: f32) -> Vec3 {
         Vec3::new(self.next(), self.next(), self.next()) * (2.0 * s) - Vec3::splat(s)
     }
 }
