@@ -161,16 +161,23 @@ impl Team {
     }
 
     /// Runs `solve` as the leader of a team with one helper per other thread of the current
-    /// rayon pool.
+    /// rayon pool. The helpers are released however `solve` ends, a panic included (which then
+    /// propagates).
     pub fn lead<R: Send>(solve: impl FnOnce(&Team) -> R + Send) -> R {
+        /// Ends the team when the leader's solve ends, by return or by unwinding.
+        struct Finish<'a>(&'a Team);
+        impl Drop for Finish<'_> {
+            fn drop(&mut self) {
+                self.0.finish();
+            }
+        }
         let team = Team::new();
         rayon::scope(|s| {
             for _ in 1..rayon::current_num_threads() {
                 s.spawn(|_| team.help());
             }
-            let result = solve(&team);
-            team.finish();
-            result
+            let _finish = Finish(&team);
+            solve(&team)
         })
     }
 }
@@ -285,6 +292,20 @@ mod tests {
                 }
             });
         });
+    }
+
+    #[test]
+    fn a_panicking_solve_releases_its_helpers_and_propagates() {
+        // Without the release the helpers would spin forever and the scope would never end.
+        let caught = pool(2).install(|| {
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                Team::lead(|team| {
+                    Par::Team(team).for_each(4, |_| {});
+                    panic!("a bug in a solve");
+                })
+            }))
+        });
+        assert!(caught.is_err());
     }
 
     #[test]
