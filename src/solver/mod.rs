@@ -515,7 +515,10 @@ impl SpringSystem {
         // iteration has several short parallel loops, and handed to rayon one by one every
         // loop would wait for a sleeping worker to wake up (futex round trips that cost more
         // than a 10k-vertex loop). The team's helpers stay awake for the whole solve.
-        Team::lead(|team| self.relax_on_pool(x, loads, config, projection, team))
+        let helpers = kernels::chunks(self.vertex_count()).saturating_sub(1);
+        Team::lead(helpers, |team| {
+            self.relax_on_pool(x, loads, config, projection, team)
+        })
     }
 
     /// [`relax_projected`](Self::relax_projected), on a worker of the rayon pool.

@@ -161,9 +161,10 @@ impl Team {
     }
 
     /// Runs `solve` as the leader of a team with one helper per other thread of the current
-    /// rayon pool. The helpers are released however `solve` ends, a panic included (which then
-    /// propagates).
-    pub fn lead<R: Send>(solve: impl FnOnce(&Team) -> R + Send) -> R {
+    /// rayon pool, at most `max_helpers` (a solve whose loops have one chunk needs none: a
+    /// helper would only spin, and keep its thread from other work such as other solves). The
+    /// helpers are released however `solve` ends, a panic included (which then propagates).
+    pub fn lead<R: Send>(max_helpers: usize, solve: impl FnOnce(&Team) -> R + Send) -> R {
         /// Ends the team when the leader's solve ends, by return or by unwinding.
         struct Finish<'a>(&'a Team);
         impl Drop for Finish<'_> {
@@ -173,7 +174,7 @@ impl Team {
         }
         let team = Team::new();
         rayon::scope(|s| {
-            for _ in 1..rayon::current_num_threads() {
+            for _ in 0..max_helpers.min(rayon::current_num_threads() - 1) {
                 s.spawn(|_| team.help());
             }
             let _finish = Finish(&team);
@@ -247,9 +248,9 @@ mod tests {
 
     /// Runs `loops` loops of varying sizes (0 included) on a team and checks that every chunk of
     /// every loop ran exactly once, with the right loop's body.
-    fn every_chunk_once(threads: usize, loops: usize) {
+    fn every_chunk_once(threads: usize, helpers: usize, loops: usize) {
         pool(threads).install(|| {
-            Team::lead(|team| {
+            Team::lead(helpers, |team| {
                 for l in 0..loops {
                     let n = (l * 7) % 23;
                     let hits: Vec<AtomicUsize> = (0..n).map(|_| AtomicUsize::new(0)).collect();
@@ -267,15 +268,17 @@ mod tests {
     #[test]
     fn every_chunk_of_every_loop_runs_once_on_one_to_four_threads() {
         for threads in [1, 2, 4] {
-            every_chunk_once(threads, 3_000);
+            every_chunk_once(threads, usize::MAX, 3_000);
         }
+        // A team without helpers (a one-chunk solve's) runs everything on the leader.
+        every_chunk_once(2, 0, 300);
     }
 
     #[test]
     fn chunked_writes_reach_the_leader() {
         pool(2).install(|| {
             let mut data = vec![0u32; 1000];
-            Team::lead(|team| {
+            Team::lead(usize::MAX, |team| {
                 for round in 1..200u32 {
                     let chunks = Chunked::new(&mut data, 64);
                     Par::Team(team).for_each(chunks.chunks(), |c| {
@@ -299,7 +302,7 @@ mod tests {
         // Without the release the helpers would spin forever and the scope would never end.
         let caught = pool(2).install(|| {
             std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                Team::lead(|team| {
+                Team::lead(usize::MAX, |team| {
                     Par::Team(team).for_each(4, |_| {});
                     panic!("a bug in a solve");
                 })
@@ -316,7 +319,7 @@ mod tests {
             let sums: Vec<usize> = (0..4usize)
                 .into_par_iter()
                 .map(|t| {
-                    Team::lead(|team| {
+                    Team::lead(usize::MAX, |team| {
                         let total = AtomicUsize::new(0);
                         for _ in 0..500 {
                             Par::Team(team).for_each(8, |c| {
