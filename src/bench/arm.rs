@@ -365,9 +365,9 @@ impl ArmRun {
         let system = &work.tube.system;
         // The warm start (timed with the frame: the ECS pays it too): each vertex carried by its
         // anchor's motion since the last frame.
-        let prev = work.anchors(self.frame);
+        let prev = self.predict.then(|| work.anchors(self.frame));
         let start = Instant::now();
-        if self.predict {
+        if let Some(prev) = prev {
             predict_from_anchors(&mut self.x, &prev, &anchors);
         }
 

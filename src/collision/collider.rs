@@ -701,14 +701,6 @@ impl MeshShape {
         oriented(p, point, feature_normal, t, coords)
     }
 
-    /// parry's projection of `p` on triangle `t` ([`Self::triangle_projection`]): its distance,
-    /// point and location.
-    #[inline]
-    fn triangle_point(&self, t: u32, p: Vec3) -> (f32, Vec3, TrianglePointLocation) {
-        let (d, proj, location) = self.triangle_projection(t, p);
-        (d, proj.point, location)
-    }
-
     /// Distance from `p` to triangle `t` (lean closest-point arithmetic, without parry's
     /// robustness checks; equal to parry's distance up to rounding).
     #[inline]
@@ -733,9 +725,9 @@ impl MeshShape {
         let mut best: Option<(f32, u32, Vec3, TrianglePointLocation)> = None;
         for (d, t) in candidates {
             if d <= lean_min + eps {
-                let (dp, point, location) = self.triangle_point(t, p);
+                let (dp, proj, location) = self.triangle_projection(t, p);
                 if best.as_ref().is_none_or(|b| dp < b.0) {
-                    best = Some((dp, t, point, location));
+                    best = Some((dp, t, proj.point, location));
                 }
             }
         }
