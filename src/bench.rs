@@ -7,6 +7,7 @@
 pub mod arm;
 pub mod peers;
 mod previous;
+pub mod targets;
 
 use std::time::Instant;
 
@@ -596,6 +597,9 @@ pub struct BenchReport {
     pub wall_s: f64,
     /// One entry per workload.
     pub workloads: Vec<WorkloadReport>,
+    /// Issue 8's targets checked against this run ([`targets::TARGETS`]); empty for any plan
+    /// but [`Plan::FULL`] (the targets are for the full workloads' sizes).
+    pub targets: Vec<targets::TargetCheck>,
 }
 
 /// Sizes and frame counts of one `dermis bench` run.
@@ -681,10 +685,16 @@ pub fn run_plan(plan: &Plan, quick: bool, mut progress: impl FnMut(&str)) -> Ben
     progress("relax-1m");
     let work = TubeWorkload::new("relax-1m", plan.vertices[2]);
     workloads.push(run_workload(&work, &machine, plan.frames[2], plan.runs[2]));
+    let targets = if *plan == Plan::FULL {
+        targets::check(&targets::TARGETS, &workloads)
+    } else {
+        Vec::new()
+    };
     BenchReport {
         machine,
         wall_s: start.elapsed().as_secs_f64(),
         workloads,
+        targets,
     }
 }
 
@@ -781,6 +791,8 @@ mod tests {
             .map(|w| w["name"].as_str().unwrap())
             .collect();
         assert_eq!(names, ["tube-10k", "tube-100k", "relax-1m"]);
+        // Not the full plan: no targets checked.
+        assert_eq!(json["targets"], serde_json::json!([]));
         let always = [
             "skin_vertices",
             "collider_triangles",

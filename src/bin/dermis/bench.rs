@@ -92,5 +92,32 @@ pub fn run(args: Args) -> CliResult {
          parry query per vertex over a frame's contact; refit: muscle refit ms; shuf: shuffled / \
          ordered time"
     );
+    if !report.targets.is_empty() {
+        println!(
+            "issue 8 targets (attainment: measured / target for a floor, target / measured for a ceiling):"
+        );
+        let short = |v: f64| {
+            if v.abs() >= 1e4 {
+                format!("{v:.3e}")
+            } else {
+                format!("{v:.3}")
+            }
+        };
+        for t in &report.targets {
+            let side = match t.goal {
+                dermis::bench::targets::Goal::AtLeast => ">=",
+                dermis::bench::targets::Goal::AtMost => "<=",
+            };
+            println!(
+                "  {:<10} {:<31} {side} {:<9} measured {:<9} attainment {:.2} {}",
+                t.workload,
+                t.metric,
+                short(t.target),
+                short(t.measured),
+                t.attainment,
+                if t.met { "met" } else { "not met" }
+            );
+        }
+    }
     Ok(())
 }
