@@ -64,6 +64,9 @@ struct MeshShape {
     prev: Vec<Vec3>,
     /// Vertices of the current frame.
     current: Vec<Vec3>,
+    /// Largest displacement from `prev` to `current`, m (kept with them: the frame plan reads
+    /// it several times, and `set_vertices` measures it in its one read of the input).
+    deform_m: f32,
     /// Triangle across each of a triangle's edges, in parry's local edge numbering (0: AB,
     /// 1: BC, 2: AC).
     across: Vec<[u32; 3]>,
@@ -206,6 +209,7 @@ impl ColliderMesh {
                 rest: vertices.clone(),
                 prev: vertices.clone(),
                 current: vertices,
+                deform_m: 0.0,
                 across,
                 vt_offsets,
                 vt,
@@ -306,11 +310,13 @@ impl ColliderMesh {
                 expected: m.current.len(),
             });
         }
-        // One branch-free read of both arrays checks the input and bounds the motion.
-        let (mut finite, mut moved_sq) = (true, 0.0f32);
-        for (v, l) in vertices.iter().zip(&m.live) {
+        // One branch-free read of the arrays checks the input, bounds the motion and measures
+        // the frame's deformation.
+        let (mut finite, mut moved_sq, mut deform_sq) = (true, 0.0f32, 0.0f32);
+        for ((v, l), p) in vertices.iter().zip(&m.live).zip(&m.prev) {
             finite &= v.is_finite();
             moved_sq = moved_sq.max(l.distance_squared(*v));
+            deform_sq = deform_sq.max(p.distance_squared(*v));
         }
         if !finite {
             return Err(CollisionError::NonFinite {
@@ -319,6 +325,7 @@ impl ColliderMesh {
             });
         }
         let moved = moved_sq.sqrt();
+        m.deform_m = deform_sq.sqrt();
         m.whole = OnceLock::new();
         let (live, current) = (&mut m.live, &mut m.current);
         // The copies are one more job next to the parts' refits.
@@ -380,7 +387,7 @@ impl ColliderMesh {
     /// (0 for rigid colliders).
     pub(crate) fn frame_deform_m(&self) -> f32 {
         match &self.shape {
-            Shape::Mesh(m) => max_displacement(&m.prev, &m.current),
+            Shape::Mesh(m) => m.deform_m,
             _ => 0.0,
         }
     }
@@ -435,6 +442,7 @@ impl ColliderMesh {
         self.prev_pose = self.pose;
         if let Shape::Mesh(m) = &mut self.shape {
             m.prev.copy_from_slice(&m.current);
+            m.deform_m = 0.0;
         }
     }
 
@@ -1087,14 +1095,6 @@ fn move_to(live: &mut [Vec3], target: impl Iterator<Item = Vec3>) -> f32 {
         *l = t;
     }
     moved_sq
-}
-
-fn max_displacement(a: &[Vec3], b: &[Vec3]) -> f32 {
-    a.iter()
-        .zip(b)
-        .map(|(a, b)| a.distance_squared(*b))
-        .fold(0.0f32, f32::max)
-        .sqrt()
 }
 
 /// Bound on the displacement of any point of `aabb` (rest frame) between two poses: the largest

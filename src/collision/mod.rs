@@ -759,6 +759,9 @@ impl SkinCollision {
         struct Motion {
             prev: Pose,
             pose: Pose,
+            /// `prev.lerp(pose, k / PATH_STEPS)` for every `k`: the bisection only evaluates
+            /// the path at these times, the same for every vertex.
+            path: [Pose; PATH_STEPS + 1],
             shift: f32,
             angle: f32,
             deform: f32,
@@ -779,6 +782,7 @@ impl SkinCollision {
                 Motion {
                     prev,
                     pose,
+                    path: std::array::from_fn(|k| prev.lerp(&pose, k as f32 / PATH_STEPS as f32)),
                     shift: prev.translation.distance(pose.translation),
                     angle: delta.normalize().to_axis_angle().1.abs(),
                     deform,
@@ -795,10 +799,17 @@ impl SkinCollision {
             let v = p0.distance(p1);
             let band = h * (1.0 + cfg.contact_band);
             for ((col, m), slot) in self.colliders.iter().zip(&motions).zip(slots) {
-                if m.global == 0.0 && v == 0.0 {
+                // `motion` below is at most `m.global + v` (a still pair: 0), and `worst >= 0`.
+                if m.global + v <= worst {
                     continue;
                 }
-                let speed = m.shift + m.angle * (p1.distance(m.pose.translation) + v + m.shift) + v;
+                // (No turn, no lever arm: the same sum without the distance.)
+                let turn = if m.angle == 0.0 {
+                    0.0
+                } else {
+                    m.angle * (p1.distance(m.pose.translation) + v + m.shift)
+                };
+                let speed = m.shift + turn + v;
                 let motion = (speed + m.deform).min(m.global + v);
                 if motion <= worst {
                     continue;
@@ -809,16 +820,24 @@ impl SkinCollision {
                 // frame's surface motion less) proves what the first test of `reaches` would:
                 // both ends at least `margin + speed / 2` away (with room for the rounding of
                 // the distances it computes).
-                let bound = slot
-                    .lower_bound(p1, m.travel)
-                    .min(slot.lower_bound(p0, m.travel) - m.global as f64);
+                // (A vertex with no last pass this frame has `p0 == p1`: one bound.)
+                let now = slot.lower_bound(p1, m.travel);
+                let before = if p0 == p1 {
+                    now
+                } else {
+                    slot.lower_bound(p0, m.travel)
+                };
+                let bound = now.min(before - m.global as f64);
                 let needed = (margin + 0.5 * speed) as f64;
                 if bound - 1e-4 * (p1.abs().max_element() as f64 + needed) - 1e-6 >= needed {
                     continue;
                 }
                 let distance = |t: f32| {
+                    let k = t * PATH_STEPS as f32;
                     let pose = if t >= 1.0 {
                         m.pose
+                    } else if k.fract() == 0.0 && k >= 0.0 {
+                        m.path[k as usize]
                     } else {
                         m.prev.lerp(&m.pose, t)
                     };
@@ -1317,6 +1336,10 @@ impl Ctx<'_> {
     }
 }
 
+/// The finest piece of [`reaches`]' bisection is `1 / PATH_STEPS` of the path: it evaluates the
+/// path only at multiples of that.
+const PATH_STEPS: usize = 64;
+
 /// Whether a path along which `distance(t)` (`t ∈ [0, 1]`) is 1-Lipschitz at `speed` can come
 /// below `margin`: bisection with exact ends, up to 64 pieces (`true` when not disproved).
 fn reaches(distance: &impl Fn(f32) -> f32, speed: f32, margin: f32) -> bool {
@@ -1338,7 +1361,7 @@ fn reaches(distance: &impl Fn(f32) -> f32, speed: f32, margin: f32) -> bool {
         if sa.min(sb) - dip >= margin {
             continue;
         }
-        if tb - ta <= 1.0 / 64.0 {
+        if tb - ta <= 1.0 / PATH_STEPS as f32 {
             return true;
         }
         let tm = 0.5 * (ta + tb);

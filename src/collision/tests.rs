@@ -1251,3 +1251,42 @@ fn projections_over_many_chunks_report_contacts_and_unresolved_vertices_in_order
         assert_eq!(unresolved, &want, "pass {pass}");
     }
 }
+
+/// The frame plan's bisection evaluates a path only at multiples of `1 / PATH_STEPS` (where
+/// the plan keeps each rigid collider's poses, computed once), and answers as a direct check
+/// of the pieces would: a path that dips below the margin anywhere is found, a path that stays
+/// above it by more than the Lipschitz slack of the finest piece is cleared.
+#[test]
+fn reaching_bisection_evaluates_the_path_only_at_the_kept_times() {
+    use std::cell::RefCell;
+    let speed = 1.0f32;
+    for (dip_at, dip, margin) in [
+        (0.3f32, 0.2f32, 0.05f32),
+        (0.71, 0.0, 0.05),
+        (0.5, 0.45, 0.05),
+        (0.9, 0.6, 0.01),
+    ] {
+        // 1-Lipschitz at `speed`: a V of slope `speed` bottoming at `dip` at `dip_at`.
+        let times = RefCell::new(Vec::new());
+        let distance = |t: f32| {
+            times.borrow_mut().push(t);
+            dip + speed * (t - dip_at).abs()
+        };
+        let found = reaches(&distance, speed, margin);
+        for &t in times.borrow().iter() {
+            let k = t * PATH_STEPS as f32;
+            assert!(
+                k.fract() == 0.0 && (0.0..=PATH_STEPS as f32).contains(&k),
+                "t = {t}"
+            );
+        }
+        // The path's true minimum is `dip`: below the margin it must be found; above the
+        // margin plus the finest piece's slack it must be cleared.
+        if dip < margin {
+            assert!(found, "dip {dip} at {dip_at} below {margin} not found");
+        }
+        if dip > margin + 0.5 * speed / PATH_STEPS as f32 {
+            assert!(!found, "dip {dip} at {dip_at} above {margin} not cleared");
+        }
+    }
+}

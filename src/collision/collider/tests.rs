@@ -447,3 +447,41 @@ fn short_patches_ignore_the_lanes_past_their_end() {
     // The wide path stayed on when the CPU has it (the bad lanes were past the end).
     assert_eq!(batches.wide, lean::available());
 }
+
+/// The frame deformation the plan reads ([`ColliderMesh::frame_deform_m`]), kept by
+/// `set_vertices` and `commit_frame`, is the largest vertex displacement since the last
+/// committed frame, computed here from the shapes given: across two refreshes in one frame,
+/// after a commit (none), and unchanged by a refresh rejected for a non-finite vertex.
+#[test]
+fn frame_deformation_is_the_largest_displacement_since_the_last_frame() {
+    let (v, t) = muscle(20, 32);
+    let largest = |a: &[Vec3], b: &[Vec3]| {
+        a.iter()
+            .zip(b)
+            .map(|(a, b)| f64::from(a.distance(*b)))
+            .fold(0.0f64, f64::max)
+    };
+    let mut c = ColliderMesh::from_mesh(v.clone(), t).unwrap();
+    assert_eq!(c.frame_deform_m(), 0.0);
+    let (one, two) = (deform(&v, 0.4), deform(&v, 1.1));
+    c.set_vertices(&one).unwrap();
+    let expected = largest(&v, &one);
+    assert!(expected > 1e-3);
+    assert!((f64::from(c.frame_deform_m()) - expected).abs() <= 1e-6 * expected);
+    // A second refresh in the same frame: measured from the last frame's shape, not `one`.
+    c.set_vertices(&two).unwrap();
+    let expected = largest(&v, &two);
+    assert!((f64::from(c.frame_deform_m()) - expected).abs() <= 1e-6 * expected);
+    assert_eq!(c.frame_motion_m(), c.frame_deform_m());
+    let kept = c.frame_deform_m();
+    let mut bad = deform(&v, 2.0);
+    bad[7].z = f32::NAN;
+    assert!(c.set_vertices(&bad).is_err());
+    assert_eq!(c.frame_deform_m().to_bits(), kept.to_bits());
+    c.commit_frame();
+    assert_eq!(c.frame_deform_m(), 0.0);
+    let three = deform(&v, 1.5);
+    c.set_vertices(&three).unwrap();
+    let expected = largest(&two, &three);
+    assert!((f64::from(c.frame_deform_m()) - expected).abs() <= 1e-6 * expected);
+}
