@@ -32,8 +32,7 @@ pub(crate) struct Frame<'a> {
 /// The reductions of one force gather (each summed per chunk, then over chunks in order).
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct Sums {
-    /// Total energy, J; for a gather at a trial point ([`Frame::gather_step`]), the energy
-    /// change from `x` to it instead.
+    /// Total energy, J.
     pub energy: f64,
     /// `Σ r·r` of the new net force.
     pub rr: f64,
@@ -86,9 +85,7 @@ impl Frame<'_> {
     }
 
     /// [`gather`](Self::gather) at the trial point `x + a d`, computed on the fly with the
-    /// same f32 operations as [`advance`] (so the accepted step lands exactly there); the
-    /// sums' energy is the change from `x` to that point (each term's change formed in f32
-    /// from how far the step moved the vertices, without cancellation, and summed in f64).
+    /// same f32 operations as [`advance`] (so the accepted step lands exactly there).
     pub fn gather_step(
         &self,
         x: &[Vec3],
@@ -114,7 +111,6 @@ impl Frame<'_> {
             sell: self.sell,
             x,
             step,
-            delta: step.is_some(),
             anchors: self.anchors,
             external: self.external,
             w,

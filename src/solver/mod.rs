@@ -586,9 +586,7 @@ impl SpringSystem {
             chopped_rr = contacts.constrain(&mut r, &inv_diag, &mut sums).chopped_rr;
             p.hold(&contacts.held_flags);
         }
-        // The total energy, and whether it was evaluated at the current point (rather than
-        // tracked from the steps' energy changes).
-        let (mut energy, mut energy_exact) = (sums.energy, true);
+        let mut energy = sums.energy;
         let external_norm = external.as_deref().map_or(0.0, |f| {
             let free: Vec<Vec3> = f
                 .iter()
@@ -607,11 +605,6 @@ impl SpringSystem {
                 r_norm
             });
         let mut history = Vec::new();
-        let mut history_scratch = if config.record_energy {
-            (vec![Vec3::ZERO; n], vec![Vec3::ZERO; n])
-        } else {
-            (Vec::new(), Vec::new())
-        };
         if config.record_energy {
             history.push(energy);
         }
@@ -668,9 +661,7 @@ impl SpringSystem {
                 1.0
             };
             // The force gather at the trial point `x + a d` overwrites `r` (reading the old
-            // force for the product `Σ w r·r_old` first); a rejected trial restores it. It
-            // returns the energy change of the step (formed per term without cancellation, so
-            // its sign is right down to tiny steps): the step is accepted iff it is negative.
+            // force for the product `Σ w r·r_old` first); a rejected trial restores it.
             let mut accepted = None;
             for attempt in 0..30 {
                 if attempt > 0 {
@@ -680,7 +671,7 @@ impl SpringSystem {
                 let a = alpha as f32;
                 let sums =
                     frame.gather_step(&xi, &d, a, Some(&inv_diag), &mut r, &mut sums_scratch);
-                if sums.energy < 0.0 {
+                if sums.energy < energy {
                     accepted = Some((sums, a));
                     break;
                 }
@@ -688,14 +679,12 @@ impl SpringSystem {
             }
             let Some((mut sums, step)) = accepted else {
                 let mut sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
-                (energy, energy_exact) = (sums.energy, true);
                 let c = contacts.constrain(&mut r, &inv_diag, &mut sums);
                 r_norm = (sums.rr + c.chopped_rr).sqrt();
                 stop = StopReason::Stalled;
                 break;
             };
-            // The total, tracked from the changes (evaluated afresh where it is reported).
-            (energy, energy_exact) = (energy + sums.energy, false);
+            energy = sums.energy;
             iterations += 1;
             // `Σ w r·r_old` against the previous (projected) residual, taken at the trial point:
             // a projection that keeps the held set only corrects a drift, and the held
@@ -715,7 +704,7 @@ impl SpringSystem {
             if let Some(p) = projection.as_deref_mut() {
                 if p.project(&mut xi, &self.order) {
                     sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
-                    (energy, energy_exact) = (sums.energy, true);
+                    energy = sums.energy;
                     rd = dot(par, &r, &d, &mut scalar_scratch);
                 }
                 contacts.refresh(p.active_contacts());
@@ -747,22 +736,6 @@ impl SpringSystem {
                 best = (sums.rr + chopped_rr).sqrt();
             }
             if config.record_energy {
-                // The total afresh (a diagnostic: one more gather per iteration), not the
-                // tracked sum of the changes.
-                if !energy_exact {
-                    let (y, f) = &mut history_scratch;
-                    let at: &[Vec3] = if step_now {
-                        &xi
-                    } else {
-                        // The trial point, as the fused step below will compute it.
-                        for ((y, x), d) in y.iter_mut().zip(&xi).zip(&d) {
-                            *y = *x + *d * step;
-                        }
-                        y
-                    };
-                    energy = frame.gather(at, None, f, &mut sums_scratch).energy;
-                    energy_exact = true;
-                }
                 history.push(energy);
             }
             r_norm = (sums.rr + chopped_rr).sqrt();
@@ -800,11 +773,6 @@ impl SpringSystem {
         }
         if stop == StopReason::Budget && converged(r_norm) {
             stop = StopReason::Converged;
-        }
-        if !energy_exact {
-            // The reported total afresh (the tracked sum of the changes drifts by their
-            // rounding).
-            energy = frame.gather(&xi, None, &mut r, &mut sums_scratch).energy;
         }
         self.to_caller(&xi, x);
         Ok(report(iterations, r_norm, energy, stop, history))

@@ -865,9 +865,6 @@ pub(crate) struct ForceInputs<'a> {
     /// `Some((d, a))`: the forces are taken at `x + a d` (computed on the fly, the same f32
     /// operations as [`advance`]).
     pub step: Option<(&'a [Vec3], f32)>,
-    /// With a step: the sums' energy is the change from `x` to `x + a d` instead of the total
-    /// (see [`Sums::energy`]).
-    pub delta: bool,
     pub anchors: Option<&'a [VertexAnchor]>,
     pub external: Option<&'a [Vec3]>,
     /// The preconditioner weights (inverse diagonal) for the dot products; a negative weight
@@ -1074,14 +1071,13 @@ unsafe fn own_vec3<S: Lanes>(l: S, sell: &Sell, s: usize, own: S::I, v: &[Vec3])
 }
 
 /// Net force (before pinning) and twice the energy of the vertices of slice `s`, at `x`
-/// (`x + a d` with `STEP`; with `DELTA`, twice the energy change from `x` to `x + a d`, each
-/// term's change formed in f32 without cancellation). Twice: every term without its factor ½, halved once per chunk
+/// (`x + a d` with `STEP`). Twice: every term without its factor ½, halved once per chunk
 /// (scaling by 2 is exact, so the halved sum has the bits of the sum of the halved terms).
 ///
 /// # Safety
 /// All arrays of `f` have `f.sell.n` entries and every spring index is below it.
 #[inline(always)]
-unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool, const DELTA: bool>(
+unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     l: S,
     f: &ForceInputs<'_>,
     s: usize,
@@ -1093,25 +1089,13 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool, const DELTA: bool>(
     let xp = f.x.as_ptr().cast::<f32>();
     let (d, a) = f.step.unwrap_or((f.x, 0.0));
     let (dp, a) = (d.as_ptr().cast::<f32>(), l.splat(a));
-    let zero = l.splat(0.0);
-    // The trial point `y` of the slice's vertices and, with `DELTA`, how far the step moved
-    // them: `δ = y − x` in f32, exact wherever the step is not larger than the coordinate
-    // (Fast2Sum: `fl(x + t) − x` is representable when `|t| <= |x|`), otherwise within half
-    // an ulp of itself.
     // SAFETY (all gathers): indices below n, arrays of n entries (the caller's contract).
-    let ([yx, yy, yz], [mx, my, mz]) = unsafe {
+    let [yx, yy, yz] = unsafe {
         if STEP && (s + 1) * LANES <= sell.n {
             // A full slice: the step on the 24 floats as stored, then one transpose.
             let (xs, ds) = (xp.add(3 * LANES * s), dp.add(3 * LANES * s));
-            let x = [0, 8, 16].map(|f| l.load_at(xs.add(f)));
-            let y: [S::F; 3] =
-                std::array::from_fn(|c| l.add(x[c], l.mul(l.load_at(ds.add(8 * c)), a)));
-            let moved = if DELTA {
-                l.deinterleave(std::array::from_fn(|c| l.sub(y[c], x[c])))
-            } else {
-                [zero; 3]
-            };
-            (l.deinterleave(y), moved)
+            let y = [0, 8, 16].map(|f| l.add(l.load_at(xs.add(f)), l.mul(l.load_at(ds.add(f)), a)));
+            l.deinterleave(y)
         } else {
             let x = own_vec3(l, sell, s, own, f.x);
             let d = if STEP {
@@ -1119,44 +1103,30 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool, const DELTA: bool>(
             } else {
                 x
             };
-            let y = stepped::<S, STEP>(l, x, d, a);
-            let moved = if DELTA {
-                std::array::from_fn(|c| l.sub(y[c], x[c]))
-            } else {
-                [zero; 3]
-            };
-            (y, moved)
+            stepped::<S, STEP>(l, x, d, a)
         }
     };
     let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
+    let zero = l.splat(0.0);
     let (one, half) = (l.splat(1.0), l.splat(0.5));
     let (mut fx, mut fy, mut fz) = (zero, zero, zero);
     let mut energy = l.dsplat(0.0);
-    // With `DELTA`: twice the energy change of the slice's terms, per lane in f32 (widened
-    // once at the end).
-    let mut change = zero;
     // The force of one spring of every lane (entry `e`), with what the energy needs (a macro:
     // a closure would not inherit the target features, and its lane operations would not
-    // inline). `$z` gives the other ends' positions from `(j, rows)`.
+    // inline).
     macro_rules! spring {
         ($e:expr, $k:expr) => {{
-            spring!($e, $k, |j, rows| {
-                // SAFETY: spring indices are below n, x and d have n entries.
-                unsafe {
-                    if STEP {
-                        l.vec3s_step(xp, dp, a, sell.n, &rows, j)
-                    } else {
-                        l.vec3s(xp, sell.n, &rows, j)
-                    }
-                }
-            })
-        }};
-        ($e:expr, $k:expr, |$j:ident, $rows:ident| $z:expr) => {{
             let e = $e;
-            let ($j, $rows) = ends.at(l, e);
+            let (j, rows) = ends.at(l, e);
             let (k, rest) = $k;
-            let z = $z;
-            let j = $j;
+            // SAFETY: spring indices are below n, x and d have n entries.
+            let z = unsafe {
+                if STEP {
+                    l.vec3s_step(xp, dp, a, sell.n, &rows, j)
+                } else {
+                    l.vec3s(xp, sell.n, &rows, j)
+                }
+            };
             let (ex, ey, ez) = (l.sub(z[0], yx), l.sub(z[1], yy), l.sub(z[2], yz));
             let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
             // `len > MIN_POSITIVE` exactly when `l2 > 0`: a positive f32 `l2` is at least the
@@ -1172,7 +1142,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool, const DELTA: bool>(
             fx = l.add(fx, l.mul(ex, c));
             fy = l.add(fy, l.mul(ey, c));
             fz = l.add(fz, l.mul(ez, c));
-            (j, z, len, inv, ok, k, rest, l2, [ex, ey, ez])
+            (j, z, len, inv, ok, k, rest)
         }};
     }
     // Force always, energy from the upper entries on (springs to higher vertices only): two
@@ -1202,43 +1172,8 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool, const DELTA: bool>(
     for e in upper.clone().step_by(LANES) {
         // SAFETY: the slot's eight pairs are in bounds (checked by the caller).
         let (k, rest) = unsafe { l.pairs(kr.add(2 * (parts.pairs + e - upper.start))) };
-        if DELTA {
-            // The other ends at `x` and `y`, and how far they moved (as for the own vertices).
-            let moved: [S::F; 3];
-            let (_, _, len, _, _, _, rest, l2, [ex, ey, ez]) =
-                spring!(e, (l.abs(k), rest), |j, rows| {
-                    // SAFETY: spring indices are below n, x and d have n entries.
-                    let (x, d) = unsafe { l.vec3s_pair(xp, dp, sell.n, &rows, j) };
-                    let z = stepped::<S, true>(l, x, d, a);
-                    moved = std::array::from_fn(|c| l.sub(z[c], x[c]));
-                    z
-                });
-            // Twice the change `k (l' − l)(l' + l − 2 L)`, with `l' − l = Δ·(e' + e) / (l' + l)`
-            // for `Δ = e' − e = δ_j − δ_i` (no cancellation: small steps give small `Δ`), and
-            // `e' + e = 2 e' − Δ`.
-            let (dx, dy, dz) = (
-                l.sub(moved[0], mx),
-                l.sub(moved[1], my),
-                l.sub(moved[2], mz),
-            );
-            let (sx, sy, sz) = (
-                l.sub(l.add(ex, ex), dx),
-                l.sub(l.add(ey, ey), dy),
-                l.sub(l.add(ez, ez), dz),
-            );
-            let p = l.add(l.add(l.mul(dx, sx), l.mul(dy, sy)), l.mul(dz, sz));
-            // `l' − l = P / (l' + l)` with `l = √(l'² − P)`; padding and springs to a lower
-            // vertex (stiffness <= 0) add `+0`, and so does a spring of zero length at both
-            // points (`l' + l == 0`).
-            let sum = l.add(len, l.sqrt(l.max(l.sub(l2, p), zero)));
-            let dl = l.keep(l.gt(sum, zero), l.div(p, sum));
-            // `l' + l − 2 L`.
-            let term = l.mul(l.mul(l.max(k, zero), dl), l.sub(sum, l.add(rest, rest)));
-            change = l.add(change, term);
-            continue;
-        }
         // A negative stiffness marks a spring to a lower vertex (see `Sell::kr`).
-        let (_, [zx, zy, zz], len, inv, ok, _, rest, _, _) = spring!(e, (l.abs(k), rest));
+        let (_, [zx, zy, zz], len, inv, ok, _, rest) = spring!(e, (l.abs(k), rest));
         // Energy in f64 from exact differences, each spring once (from its lower end): the
         // stretch `|e| − rest` with one Newton step on the f32 length.
         let (ex64, ey64, ez64) = (
@@ -1290,43 +1225,22 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool, const DELTA: bool>(
         fx = l.add(fx, l.neg(l.add(l.mul(nx, kdn), l.mul(tx_, kt))));
         fy = l.add(fy, l.neg(l.add(l.mul(ny, kdn), l.mul(ty_, kt))));
         fz = l.add(fz, l.neg(l.add(l.mul(nz, kdn), l.mul(tz_, kt))));
-        if DELTA {
-            // Twice the change: `k_n (dn' − dn)(dn' + dn) + k_t (p' − p)·(p' + p)` for the
-            // normal part `dn` and the tangent part `p` of `y − target`, with `dn' − dn = δ·n`
-            // and `p' − p = δ − n (δ·n)`: no cancellation for small steps.
-            let mn = l.add(l.add(l.mul(mx, nx), l.mul(my, ny)), l.mul(mz, nz));
-            let normal = l.mul(l.mul(kn, mn), l.sub(l.add(dn, dn), mn));
-            let (qx, qy, qz) = (
-                l.sub(mx, l.mul(nx, mn)),
-                l.sub(my, l.mul(ny, mn)),
-                l.sub(mz, l.mul(nz, mn)),
-            );
-            let tangent = l.add(
-                l.add(
-                    l.mul(qx, l.sub(l.add(tx_, tx_), qx)),
-                    l.mul(qy, l.sub(l.add(ty_, ty_), qy)),
-                ),
-                l.mul(qz, l.sub(l.add(tz_, tz_), qz)),
-            );
-            change = l.add(change, l.add(normal, l.mul(kt, tangent)));
-        } else {
-            let (dx, dy, dz) = (
-                l.dsub(yx64, l.widen(tx)),
-                l.dsub(yy64, l.widen(ty)),
-                l.dsub(yz64, l.widen(tz)),
-            );
-            let (nx, ny, nz) = (l.widen(nx), l.widen(ny), l.widen(nz));
-            let dn = l.dadd(l.dadd(l.dmul(dx, nx), l.dmul(dy, ny)), l.dmul(dz, nz));
-            let (px, py, pz) = (
-                l.dsub(dx, l.dmul(nx, dn)),
-                l.dsub(dy, l.dmul(ny, dn)),
-                l.dsub(dz, l.dmul(nz, dn)),
-            );
-            let lt = l.dadd(l.dadd(l.dmul(px, px), l.dmul(py, py)), l.dmul(pz, pz));
-            let normal = l.dmul(l.dmul(l.widen(kn), dn), dn);
-            let tangent = l.dmul(l.widen(kt), lt);
-            energy = l.dadd(energy, l.dadd(normal, tangent));
-        }
+        let (dx, dy, dz) = (
+            l.dsub(yx64, l.widen(tx)),
+            l.dsub(yy64, l.widen(ty)),
+            l.dsub(yz64, l.widen(tz)),
+        );
+        let (nx, ny, nz) = (l.widen(nx), l.widen(ny), l.widen(nz));
+        let dn = l.dadd(l.dadd(l.dmul(dx, nx), l.dmul(dy, ny)), l.dmul(dz, nz));
+        let (px, py, pz) = (
+            l.dsub(dx, l.dmul(nx, dn)),
+            l.dsub(dy, l.dmul(ny, dn)),
+            l.dsub(dz, l.dmul(nz, dn)),
+        );
+        let lt = l.dadd(l.dadd(l.dmul(px, px), l.dmul(py, py)), l.dmul(pz, pz));
+        let normal = l.dmul(l.dmul(l.widen(kn), dn), dn);
+        let tangent = l.dmul(l.widen(kt), lt);
+        energy = l.dadd(energy, l.dadd(normal, tangent));
     }
     if let Some(ext) = f.external {
         let ep = ext.as_ptr().cast::<f32>();
@@ -1334,19 +1248,11 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool, const DELTA: bool>(
         fx = l.add(fx, gx);
         fy = l.add(fy, gy);
         fz = l.add(fz, gz);
-        if DELTA {
-            // Twice the work's change `g·δ`, taken off.
-            let work = l.add(l.add(l.mul(gx, mx), l.mul(gy, my)), l.mul(gz, mz));
-            change = l.sub(change, l.add(work, work));
-        }
         let work = l.dadd(
             l.dadd(l.dmul(l.widen(gx), yx64), l.dmul(l.widen(gy), yy64)),
             l.dmul(l.widen(gz), yz64),
         );
         energy = l.dsub(energy, l.dadd(work, work));
-    }
-    if DELTA {
-        return ([fx, fy, fz], l.widen(change));
     }
     ([fx, fy, fz], energy)
 }
@@ -1354,7 +1260,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool, const DELTA: bool>(
 /// One chunk of the force gather: vertices `first..first + r.len()` (a multiple of [`LANES`]
 /// apart from the last chunk), forces into `r`, partial sums returned.
 #[inline(always)]
-fn force_chunk<S: Lanes, const STEP: bool, const DELTA: bool>(
+fn force_chunk<S: Lanes, const STEP: bool>(
     l: S,
     f: &ForceInputs<'_>,
     first: usize,
@@ -1386,7 +1292,8 @@ fn force_chunk<S: Lanes, const STEP: bool, const DELTA: bool>(
     let step_dir = f.step.filter(|_| STEP).map(|(d, _)| d);
     for (s, out) in (first / LANES..).zip(r.chunks_mut(LANES)) {
         // SAFETY: lengths asserted above; spring indices are below n by construction.
-        let ([fx, fy, fz], energy) = with_ends!(f.sell, s, ends => unsafe { force_slice::<S, _, STEP, DELTA>(l, f, s, ends) });
+        let ([fx, fy, fz], energy) =
+            with_ends!(f.sell, s, ends => unsafe { force_slice::<S, _, STEP>(l, f, s, ends) });
         let base = s * LANES;
         if out.len() == LANES {
             energy_acc = l.dadd(energy_acc, energy);
@@ -1467,10 +1374,10 @@ fn force_chunk<S: Lanes, const STEP: bool, const DELTA: bool>(
 /// [`force_chunk`] with the step known at compile time.
 #[inline(always)]
 fn force_chunk_any<S: Lanes>(l: S, f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
-    match (f.step.is_some(), f.delta) {
-        (true, true) => force_chunk::<S, true, true>(l, f, first, r),
-        (true, false) => force_chunk::<S, true, false>(l, f, first, r),
-        (false, _) => force_chunk::<S, false, false>(l, f, first, r),
+    if f.step.is_some() {
+        force_chunk::<S, true>(l, f, first, r)
+    } else {
+        force_chunk::<S, false>(l, f, first, r)
     }
 }
 
@@ -1966,7 +1873,6 @@ mod tests {
                     sell,
                     x,
                     step,
-                    delta: false,
                     anchors: Some(&ai),
                     external: Some(&ei),
                     w: Some(&w),
@@ -2053,7 +1959,6 @@ mod tests {
                 sell,
                 x: &x,
                 step: None,
-                delta: false,
                 anchors: None,
                 external: None,
                 w: None,
