@@ -416,6 +416,55 @@ fn reported_energy_matches_the_definition() {
     assert!((e - 0.5 * 300.0 * 0.25).abs() < 1e-12, "{e}");
 }
 
+/// The monotone-energy invariant against an independent f64 energy: the solve is
+/// deterministic, so the solve stopped after `m` iterations is the first `m` iterations of a
+/// longer one; the energy from the definition at each of those stops never rises, down to the
+/// tiny steps at the f32 floor, and the reported energy is that total.
+#[test]
+fn energy_from_the_definition_never_rises_iteration_by_iteration() {
+    let (mesh, k, x0, anchors, forces) = loaded_sheet(10);
+    let s = SpringSystem::from_mesh(&mesh, &k).unwrap();
+    let loads = Loads {
+        forces: Some(&forces),
+        anchors: Some(&anchors),
+        ..Default::default()
+    };
+    let mut previous = reference_energy(&mesh, &k, &x0, &anchors, &forces);
+    let mut smallest_drop = f64::INFINITY;
+    let mut last_iterations = 0;
+    for m in 1..=160 {
+        let cfg = RelaxConfig {
+            max_iterations: m,
+            tolerance: 0.0,
+            stagnation_window: 0,
+            ..RelaxConfig::DEFAULT
+        };
+        let mut x = x0.clone();
+        let report = s.relax(&mut x, &loads, &cfg).unwrap();
+        let e = reference_energy(&mesh, &k, &x, &anchors, &forces);
+        // The reference's own rounding: ~1e-16 per term of a sum of a few hundred.
+        let slack = 1e-13 * e.abs();
+        assert!(e <= previous + slack, "iteration {m}: {previous} -> {e}");
+        assert!(
+            (report.energy - e).abs() <= 1e-9 * e.abs(),
+            "iteration {m}: reported {} vs {e}",
+            report.energy
+        );
+        if report.iterations > last_iterations {
+            smallest_drop = smallest_drop.min(previous - e);
+        }
+        (previous, last_iterations) = (e, report.iterations);
+        if report.stop == StopReason::Stalled {
+            break;
+        }
+    }
+    // The run reached steps whose energy change is tiny next to the total.
+    assert!(
+        smallest_drop < 1e-9 * previous.abs(),
+        "{smallest_drop} vs {previous}"
+    );
+}
+
 #[test]
 fn results_are_bit_identical_for_any_thread_count() {
     // 60 x 60 = 3600 vertices: two parallel chunks, so the chunked reductions matter.
