@@ -22,6 +22,8 @@ pub(crate) const CHUNK: usize = 1024;
 /// Inputs that stay fixed during one relaxation, in internal order.
 pub(crate) struct Frame<'a> {
     pub sell: &'a Sell,
+    /// Each vertex's stiffness summed over its springs ([`Sell::stiffness_diagonal`]).
+    pub spring_diagonal: &'a [f32],
     pub isa: Isa,
     pub external: Option<&'a [Vec3]>,
     pub anchors: Option<&'a [VertexAnchor]>,
@@ -146,20 +148,19 @@ impl Frame<'_> {
     pub fn inverse_diagonal(&self, pinned: &[bool]) -> Vec<f32> {
         let mut inv = vec![0.0f32; pinned.len()];
         inv.par_chunks_mut(CHUNK).enumerate().for_each(|(c, inv)| {
-            for (j, inv) in inv.chunks_mut(LANES).enumerate() {
-                let first = c * CHUNK + j * LANES;
-                let sums = self.sell.stiffness_sums(first / LANES);
-                for (lane, (w, mut diag)) in inv.iter_mut().zip(sums).enumerate() {
-                    let i = first + lane;
-                    *w = if pinned[i] {
-                        -0.0
-                    } else {
-                        if let Some(a) = self.anchors {
-                            diag += a[i].k_normal.max(a[i].k_tangent);
-                        }
-                        if diag > 0.0 { 1.0 / diag } else { 0.0 }
-                    };
-                }
+            let first = c * CHUNK;
+            let springs = &self.spring_diagonal[first..first + inv.len()];
+            for (o, (w, &springs)) in inv.iter_mut().zip(springs).enumerate() {
+                let i = first + o;
+                *w = if pinned[i] {
+                    -0.0
+                } else {
+                    let mut diag = springs;
+                    if let Some(a) = self.anchors {
+                        diag += a[i].k_normal.max(a[i].k_tangent);
+                    }
+                    if diag > 0.0 { 1.0 / diag } else { 0.0 }
+                };
             }
         });
         inv

@@ -306,6 +306,10 @@ pub struct SpringSystem {
     order: Vec<u32>,
     rank: Vec<u32>,
     sell: Sell,
+    /// Each vertex's stiffness summed over its springs (internal order): the spring part of
+    /// the Jacobi preconditioner, the same for every solve (only the anchors are added per
+    /// solve).
+    spring_diagonal: Vec<f32>,
     edge_count: usize,
 }
 
@@ -374,15 +378,16 @@ impl SpringSystem {
         for i in 0..n {
             springs[offsets[i] as usize..offsets[i + 1] as usize].sort_by_key(|s| s.other);
         }
+        let sell =
+            Sell::from_csr(&offsets, &springs).map_err(|entries| SolverError::TooManySprings {
+                entries,
+                limit: sell::MAX_ENTRIES,
+            })?;
         Ok(Self {
             order,
             rank,
-            sell: Sell::from_csr(&offsets, &springs).map_err(|entries| {
-                SolverError::TooManySprings {
-                    entries,
-                    limit: sell::MAX_ENTRIES,
-                }
-            })?,
+            spring_diagonal: sell.stiffness_diagonal(),
+            sell,
             edge_count: edges.len(),
         })
     }
@@ -421,15 +426,17 @@ impl SpringSystem {
     /// largest degree in each slice of eight vertices; stiffness and rest length (8 bytes) once
     /// per spring, at its lower end (and for the padding and springs to lower vertices that
     /// share a slot with such springs), with a 16-bit reference to them from the other end;
-    /// three offsets per slice; and 32-bit indices for the few slices with a neighbour beyond a
-    /// 16-bit offset or a reference beyond 16 bits. About 47-50 bytes on a triangle mesh.
+    /// three offsets per slice; 32-bit indices for the few slices with a neighbour beyond a
+    /// 16-bit offset or a reference beyond 16 bits; and each vertex's summed stiffness (4 bytes,
+    /// the preconditioner's spring part). About 51-54 bytes on a triangle mesh.
     pub fn bytes_per_vertex(&self) -> f64 {
-        self.sell.bytes() as f64 / self.vertex_count().max(1) as f64
+        (self.sell.bytes() + self.spring_diagonal.len() * size_of::<f32>()) as f64
+            / self.vertex_count().max(1) as f64
     }
 
     /// Bytes per vertex of the vectors a relaxation iterates on besides the springs: positions,
     /// direction and force (12 B each) and the inverse diagonal with the pin flag (4 B), 40 B;
-    /// with the springs ([`bytes_per_vertex`](Self::bytes_per_vertex)), about 87-90 B of
+    /// with the springs ([`bytes_per_vertex`](Self::bytes_per_vertex)), about 91-94 B of
     /// solver state per vertex on a triangle mesh.
     pub const VECTOR_BYTES_PER_VERTEX: usize = 3 * 12 + 4;
 
@@ -451,6 +458,7 @@ impl SpringSystem {
     ) -> Frame<'a> {
         Frame {
             sell: &self.sell,
+            spring_diagonal: &self.spring_diagonal,
             isa: simd::Isa::detect(self.vertex_count()),
             external,
             anchors,
