@@ -28,8 +28,10 @@ import os
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from dermis_run import bench_meshes, bench_workloads  # noqa: E402
 
 THICKNESS_M = 0.002
 
@@ -152,17 +154,8 @@ def main():
     ap.add_argument("--sizes", default="tube-10k", help="workloads to compare")
     args = ap.parse_args()
 
-    if args.bench_json:
-        with open(args.bench_json) as f:
-            ours = json.load(f)
-    else:
-        out = subprocess.run([args.dermis, "bench", "--json"], check=True, capture_output=True,
-                             text=True).stdout
-        ours = json.loads(out)
-    by_name = {w["name"]: w for w in ours["workloads"]}
-    with tempfile.TemporaryDirectory() as mesh_dir:
-        subprocess.run([args.dermis, "bench", "--write-mesh", mesh_dir], check=True,
-                       capture_output=True)
+    by_name = bench_workloads(args.bench_json, args.dermis)
+    with bench_meshes(args.dermis) as mesh_dir:
         print(f"{'workload':<10} {'vertices':>9} {'Blender ms':>11} {'Blender p99':>12} "
               f"{'dermis ms':>10} {'dermis p99':>11} {'Blender/dermis':>15}")
         for name in args.sizes.split(","):
