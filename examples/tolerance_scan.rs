@@ -6,8 +6,7 @@
 //! iterations and its distance to the reference (max and rms over the vertices), then the
 //! sums. The chain itself advances at the default tolerance. See `benches/analysis/README.md`.
 use dermis::bench::arm::{ArmRun, ArmWorkload, CLIP_FRAMES};
-use dermis::collision::{predict_from_anchors, relax_frame};
-use dermis::solver::{Loads, RelaxConfig};
+use dermis::solver::RelaxConfig;
 use glam::Vec3;
 
 /// The tight reference first, then the default (1e-4) and looser ones.
@@ -23,38 +22,20 @@ fn main() {
     let (mut iterations, mut worst, mut rms_sum) = (vec![0u64; k], vec![0f32; k], vec![0f64; k]);
     for _ in 0..frames {
         let f = run.frame + 1;
-        let (muscle, pose) = (work.muscle_vertices(f), work.forearm_pose(f));
-        let (prev, anchors) = (work.anchors(run.frame), work.anchors(f));
-        let loads = Loads {
-            anchors: Some(&anchors),
-            ..Default::default()
-        };
-        // Each tolerance from the same state, as `ArmRun::step` would run it.
+        // Each tolerance from the same state: a copy of the run steps the frame with it.
         let solved: Vec<(Vec<Vec3>, u32)> = TOLERANCES
             .iter()
             .map(|&tolerance| {
-                let mut contact = run.contact.clone();
-                let mut x = run.x.clone();
-                predict_from_anchors(&mut x, &prev, &anchors);
-                let ids = run.ids;
-                contact
-                    .collider_mut(ids.muscle)
-                    .and_then(|c| c.set_vertices(&muscle))
-                    .unwrap();
-                contact
-                    .collider_mut(ids.ulna)
-                    .and_then(|c| c.set_pose(pose))
-                    .unwrap();
                 let config = RelaxConfig {
                     tolerance,
                     max_iterations: if tolerance < 1e-5 { 3000 } else { 500 },
                     ..work.relax_config()
                 };
-                let system = &work.tube.system;
-                let frame =
-                    relax_frame(system, &mut contact, &mut x, &loads, &config, &run.schedule)
-                        .expect("the bench's own inputs are valid");
-                (x, frame.report.iterations)
+                let mut copy = run.clone();
+                let times = copy
+                    .step_with(&work, &config)
+                    .expect("the bench's own inputs are valid");
+                (copy.x, times.iterations)
             })
             .collect();
         print!("frame {f}: reference {} its |", solved[0].1);

@@ -31,21 +31,8 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from dermis_run import bench_meshes, bench_workloads  # noqa: E402
+from dermis_run import THICKNESS_M, bench_meshes, bench_workloads, read_obj  # noqa: E402
 
-THICKNESS_M = 0.002
-
-
-def read_obj(path):
-    """Vertices (list of (x, y, z)) and triangles (0-based index triples) of a triangle OBJ."""
-    points, faces = [], []
-    with open(path) as f:
-        for line in f:
-            if line.startswith("v "):
-                points.append(tuple(float(t) for t in line.split()[1:4]))
-            elif line.startswith("f "):
-                faces.append(tuple(int(t.split("/")[0]) - 1 for t in line.split()[1:4]))
-    return points, faces
 
 
 def run_one(mesh_dir, name, frames):

@@ -1,9 +1,12 @@
-"""What the peer scripts share: dermis's bench figures and the bench's meshes."""
+"""What the peer scripts share: the skin thickness, dermis's bench figures, the bench's meshes and their OBJ reader."""
 
 import contextlib
 import json
 import subprocess
 import tempfile
+
+# The bench's skin thickness, m (its contact distance).
+THICKNESS_M = 0.002
 
 
 def bench_workloads(bench_json, dermis):
@@ -27,3 +30,15 @@ def bench_meshes(dermis):
         subprocess.run([dermis, "bench", "--write-mesh", mesh_dir], check=True,
                        capture_output=True)
         yield mesh_dir
+
+
+def read_obj(path):
+    """Vertices (list of (x, y, z)) and triangles (0-based index triples) of a triangle OBJ."""
+    points, faces = [], []
+    with open(path) as f:
+        for line in f:
+            if line.startswith("v "):
+                points.append(tuple(float(t) for t in line.split()[1:4]))
+            elif line.startswith("f "):
+                faces.append(tuple(int(t.split("/")[0]) - 1 for t in line.split()[1:4]))
+    return points, faces

@@ -29,22 +29,9 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from dermis_run import bench_meshes, bench_workloads  # noqa: E402
+from dermis_run import THICKNESS_M, bench_meshes, bench_workloads, read_obj  # noqa: E402
 
-THICKNESS_M = 0.002
 ITERATIONS = 30
-
-
-def read_obj(path):
-    """Vertices (list of [x, y, z]) and flat triangle indices (0-based) of a triangle OBJ."""
-    points, faces = [], []
-    with open(path) as f:
-        for line in f:
-            if line.startswith("v "):
-                points.append([float(t) for t in line.split()[1:4]])
-            elif line.startswith("f "):
-                faces.extend(int(t.split("/")[0]) - 1 for t in line.split()[1:4])
-    return points, faces
 
 
 def run_one(mesh_dir, name, frames, collider=True, resolution=30, rigid_test=False):
@@ -55,7 +42,8 @@ def run_one(mesh_dir, name, frames, collider=True, resolution=30, rigid_test=Fal
     sim = pbd.Simulation.getCurrent()
     sim.initDefault()
     model = sim.getModel()
-    points, faces = read_obj(os.path.join(mesh_dir, name + ".obj"))
+    points, triangles = read_obj(os.path.join(mesh_dir, name + ".obj"))
+    faces = [i for tri in triangles for i in tri]
     tri_model = model.addTriangleModel(
         [np.array(p) for p in points], faces, testMesh=True
     )

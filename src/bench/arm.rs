@@ -352,6 +352,15 @@ impl ArmRun {
     /// projection (half the iteration budget spread over the intermediate substeps, the rest
     /// for the last).
     pub fn step(&mut self, work: &ArmWorkload) -> Result<FrameTimes, ArmError> {
+        self.step_with(work, &work.relax_config())
+    }
+
+    /// [`step`](Self::step) with other relaxation settings (a tolerance study, say).
+    pub fn step_with(
+        &mut self,
+        work: &ArmWorkload,
+        config: &RelaxConfig,
+    ) -> Result<FrameTimes, ArmError> {
         let frame = self.frame + 1;
         // The animation (not timed): the muscle's new shape, the skinned anchors.
         let muscle = work.muscle_vertices(frame);
@@ -361,7 +370,6 @@ impl ArmRun {
             anchors: Some(&anchors),
             ..Default::default()
         };
-        let config = work.relax_config();
         let system = &work.tube.system;
         // The warm start (timed with the frame: the ECS pays it too): each vertex carried by its
         // anchor's motion since the last frame.
@@ -382,7 +390,7 @@ impl ArmRun {
             &mut self.contact,
             &mut self.x,
             &loads,
-            &config,
+            config,
             &self.schedule,
         )?;
         let collision = frame_relax.contact_time;
