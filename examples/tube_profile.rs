@@ -5,8 +5,8 @@
 //! `steady passes` (default 200; 0: none) projections of the last state, timed. The last line
 //! before them gives two hashes: `hash` (positions and contact counters: same work, same
 //! answers) and `answers` (positions, contacts and unresolved vertices only: same answers).
-//! Profile the
-//! frames' projections with 0 steady passes: the steady ones repeat the same positions.
+//! Profile the frames' projections with 0 steady passes: the steady ones repeat the same
+//! positions.
 use std::time::Instant;
 
 use dermis::bench::arm::{ArmRun, ArmWorkload};
