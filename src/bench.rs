@@ -187,6 +187,13 @@ pub struct WorkloadReport {
     /// projections inside the relaxations, averaged over the timed frames (`null` without
     /// collision).
     pub collision_us_per_vertex: Option<f64>,
+    /// The part of `collision_us_per_vertex` spent in the frame plans, µs per skin vertex per
+    /// frame (`null` without collision).
+    pub collision_plan_us_per_vertex: Option<f64>,
+    /// The part spent in the substeps' contact passes (`null` without collision).
+    pub collision_passes_us_per_vertex: Option<f64>,
+    /// The part spent in the projections inside the relaxations (`null` without collision).
+    pub collision_projections_us_per_vertex: Option<f64>,
     /// One naive pass (a parry `project_point` per skin vertex on every collider, parallel),
     /// µs per vertex, measured on the skin of sampled frames (`null` without collision).
     pub collision_naive_us_per_vertex_pass: Option<f64>,
@@ -383,6 +390,7 @@ pub fn run_arm_workload(
     let mut refresh = Vec::with_capacity(frames);
     let (mut iterations, mut substeps, mut passes) = (0u64, 0u64, 0u64);
     let (mut collision_s, mut naive_s, mut sampled_collision_s) = (0.0, 0.0, 0.0);
+    let (mut plan_s, mut passes_s, mut projections_s) = (0.0, 0.0, 0.0);
     let mut sampled = 0usize;
     let mut min_clearance = f32::INFINITY;
     let mut unresolved_max = 0;
@@ -395,6 +403,11 @@ pub fn run_arm_workload(
         substeps += u64::from(t.substeps);
         passes += t.passes;
         collision_s += t.collision_s;
+        (plan_s, passes_s, projections_s) = (
+            plan_s + t.plan_s,
+            passes_s + t.passes_s,
+            projections_s + t.projections_s,
+        );
         unresolved_max = unresolved_max.max(t.unresolved);
         converged += usize::from(t.converged);
         min_clearance = min_clearance.min(arm::analytic_clearance(work, run.frame, &run.x));
@@ -423,6 +436,7 @@ pub fn run_arm_workload(
     }
     let times = sorted(times);
     let per_frame = |v: u64| v as f64 / frames.max(1) as f64;
+    let per_vertex = |s: f64| s * 1e6 / (frames.max(1) * n) as f64;
 
     let anchors = work.anchors(work.clip_frames / 2);
     let relax = relax_figures(&work.tube, &anchors, machine, runs);
@@ -457,7 +471,10 @@ pub fn run_arm_workload(
         collision_passes_per_frame_mean: Some(per_frame(passes)),
         relax_vertex_iterations_per_s: relax.vertex_iterations_per_s,
         relax_fraction_of_floor: relax.fraction_of_floor,
-        collision_us_per_vertex: Some(collision_s * 1e6 / (frames.max(1) * n) as f64),
+        collision_us_per_vertex: Some(per_vertex(collision_s)),
+        collision_plan_us_per_vertex: Some(per_vertex(plan_s)),
+        collision_passes_us_per_vertex: Some(per_vertex(passes_s)),
+        collision_projections_us_per_vertex: Some(per_vertex(projections_s)),
         collision_naive_us_per_vertex_pass: Some(naive_s * 1e6 / (sampled.max(1) * n) as f64),
         collision_speedup_vs_naive: Some(naive_s / sampled_collision_s),
         collider_refresh_ms: Some(quantile(&sorted(refresh), 0.5)),
@@ -520,6 +537,9 @@ pub fn run_workload(
         relax_vertex_iterations_per_s: relax.vertex_iterations_per_s,
         relax_fraction_of_floor: relax.fraction_of_floor,
         collision_us_per_vertex: None,
+        collision_plan_us_per_vertex: None,
+        collision_passes_us_per_vertex: None,
+        collision_projections_us_per_vertex: None,
         collision_naive_us_per_vertex_pass: None,
         collision_speedup_vs_naive: None,
         collider_refresh_ms: None,
@@ -814,6 +834,9 @@ mod tests {
             "substeps_per_frame_mean",
             "collision_passes_per_frame_mean",
             "collision_us_per_vertex",
+            "collision_plan_us_per_vertex",
+            "collision_passes_us_per_vertex",
+            "collision_projections_us_per_vertex",
             "collision_naive_us_per_vertex_pass",
             "collision_speedup_vs_naive",
             "collider_refresh_ms",
@@ -843,6 +866,14 @@ mod tests {
                 continue;
             }
             assert_eq!(w["collider_triangles"], 2 * 32 * 19);
+            // The contact time's three parts make up the whole.
+            let part = |k: &str| w[k].as_f64().unwrap();
+            let parts = part("collision_plan_us_per_vertex")
+                + part("collision_passes_us_per_vertex")
+                + part("collision_projections_us_per_vertex");
+            let whole = part("collision_us_per_vertex");
+            assert!((parts - whole).abs() <= 1e-9 * whole, "{parts} for {whole}");
+            assert!(part("collision_projections_us_per_vertex") > 0.0);
             // Contact held: every vertex kept (nearly) the thickness from the analytic shapes.
             assert!(w["min_clearance_m"].as_f64().unwrap() > 0.5 * f64::from(arm::THICKNESS_M));
             // Each substep is one pass, each relaxation iteration one more.

@@ -266,8 +266,15 @@ pub struct FrameTimes {
     pub total_s: f64,
     /// [`ColliderMesh::set_vertices`] of the muscle, s.
     pub refresh_s: f64,
-    /// Contact work: frame plan, substep passes and the projections inside the relaxations, s.
+    /// Contact work: frame plan, substep passes and the projections inside the relaxations, s
+    /// (the sum of the three below).
     pub collision_s: f64,
+    /// The contact frame plan, s.
+    pub plan_s: f64,
+    /// The substeps' contact passes, s.
+    pub passes_s: f64,
+    /// The projections inside the relaxations, s.
+    pub projections_s: f64,
     /// Relaxation iterations, summed over substeps.
     pub iterations: u32,
     /// Substeps.
@@ -407,6 +414,9 @@ impl ArmRun {
             total_s,
             refresh_s,
             collision_s: collision.as_secs_f64(),
+            plan_s: frame_relax.plan_time.as_secs_f64(),
+            passes_s: frame_relax.pass_time.as_secs_f64(),
+            projections_s: frame_relax.projection_time.as_secs_f64(),
             iterations,
             substeps,
             passes: d.passes,

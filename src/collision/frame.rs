@@ -46,8 +46,15 @@ pub struct FrameRelax {
     pub report: RelaxReport,
     /// Substeps run.
     pub substeps: u32,
-    /// Time spent in contact (frame plan, substep passes, projections inside the solves).
+    /// Time spent in contact (frame plan, substep passes, projections inside the solves): the
+    /// sum of the three below.
     pub contact_time: Duration,
+    /// The frame plan ([`SkinCollision::begin_frame`]).
+    pub plan_time: Duration,
+    /// The substeps' contact passes ([`SkinCollision::substep`]).
+    pub pass_time: Duration,
+    /// The projections inside the relaxations.
+    pub projection_time: Duration,
 }
 
 /// Why a frame could not be relaxed.
@@ -101,7 +108,8 @@ pub fn relax_frame(
         let t = Instant::now();
         collision.clear_frame_state();
         let plan = collision.begin_frame(x)?;
-        let mut contact_time = t.elapsed();
+        let plan_time = t.elapsed();
+        let (mut pass_time, mut projection_time) = (Duration::ZERO, Duration::ZERO);
         let substeps = plan.substeps.max(1);
         let intermediate = schedule
             .substep_iterations
@@ -115,7 +123,7 @@ pub fn relax_frame(
         for s in 0..substeps {
             let t = Instant::now();
             collision.substep(x)?;
-            contact_time += t.elapsed();
+            pass_time += t.elapsed();
             let max_iterations = if s + 1 == substeps {
                 last
             } else {
@@ -130,7 +138,7 @@ pub fn relax_frame(
             };
             let mut timed = Timed::new(collision);
             let report = system.relax_projected(x, loads, &sub_config, Some(&mut timed))?;
-            contact_time += Duration::from_secs_f64(timed.seconds);
+            projection_time += Duration::from_secs_f64(timed.seconds);
             iterations += report.iterations;
             last_report = Some(report);
         }
@@ -141,7 +149,10 @@ pub fn relax_frame(
                 ..report
             },
             substeps,
-            contact_time,
+            contact_time: plan_time + pass_time + projection_time,
+            plan_time,
+            pass_time,
+            projection_time,
         })
     })
 }

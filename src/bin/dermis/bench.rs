@@ -92,6 +92,19 @@ pub fn run(args: Args) -> CliResult {
          parry query per vertex over a frame's contact; refit: muscle refit ms; shuf: shuffled / \
          ordered time"
     );
+    for w in &report.workloads {
+        if let (Some(plan), Some(passes), Some(projections)) = (
+            w.collision_plan_us_per_vertex,
+            w.collision_passes_us_per_vertex,
+            w.collision_projections_us_per_vertex,
+        ) {
+            println!(
+                "{} contact, µs per skin vertex per frame: plan {plan:.3}, substep passes \
+                 {passes:.3}, projections in the relaxations {projections:.3}",
+                w.name
+            );
+        }
+    }
     if !report.targets.is_empty() {
         println!(
             "issue 8 targets (attainment: measured / target for a floor, target / measured for a ceiling):"
