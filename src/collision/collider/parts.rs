@@ -153,12 +153,13 @@ impl Parts {
     /// refits the parts' BVHs, runs `check(c)` for every `c` in `0..checks` and then `extra`
     /// once, after every `check` has returned.
     ///
-    /// The checks, the parts (largest first) and `extra` are jobs taken in turn by the calling
+    /// The parts (largest first), the checks and `extra` are jobs taken in turn by the calling
     /// thread, which starts at once, and by rayon tasks that join as threads come free: a busy
-    /// machine costs no worse than one thread doing it all, a free core halves the time. The
-    /// thread that finishes the last check runs `extra` (a caller's checks read what its
-    /// `extra` writes). Each refit depends only on `source`: the result is the same whichever
-    /// thread runs it, for any thread count.
+    /// machine costs no worse than one thread doing it all, a free core halves the time, and
+    /// the short checks last even out the threads' ends. The thread that finishes the last
+    /// check runs `extra` (a caller's checks read what its `extra` writes). Each refit depends
+    /// only on `source`: the result is the same whichever thread runs it, for any thread
+    /// count.
     pub(super) fn refit_with<S, C, E>(&mut self, source: &S, checks: usize, check: C, extra: E)
     where
         S: Fn(usize) -> Vec3 + Sync,
@@ -187,23 +188,25 @@ impl Parts {
                 f();
             }
         };
-        // Jobs: the checks, the parts, then `extra` itself when there are no checks.
-        let jobs = checks + slots.len() + usize::from(checks == 0);
+        // Jobs: the parts, then the checks (the smallest jobs last), then `extra` itself when
+        // there are no checks.
+        let parts = slots.len();
+        let jobs = parts + checks + usize::from(checks == 0);
         let (next, checked) = (AtomicUsize::new(0), AtomicUsize::new(0));
         let work = || {
             loop {
                 let job = next.fetch_add(1, Ordering::Relaxed);
-                if job < checks {
-                    check(job);
+                if let Some(slot) = slots.get(job) {
+                    slot.lock()
+                        .unwrap_or_else(PoisonError::into_inner)
+                        .refit(source);
+                } else if job < parts + checks {
+                    check(job - parts);
                     // The last check to finish (its reads and the others' before `extra`'s
                     // writes: acquire-release) runs `extra`.
                     if checked.fetch_add(1, Ordering::AcqRel) + 1 == checks {
                         run_extra();
                     }
-                } else if let Some(slot) = slots.get(job - checks) {
-                    slot.lock()
-                        .unwrap_or_else(PoisonError::into_inner)
-                        .refit(source);
                 } else if job < jobs {
                     run_extra();
                 } else {
