@@ -77,7 +77,7 @@ struct MeshShape {
     /// Vertices of the current frame.
     current: Vec<Vec3>,
     /// Largest displacement from `prev` to `current`, m (kept with them: the frame plan reads
-    /// it several times, and `set_vertices` measures it in its one read of the input).
+    /// it several times, and `set_vertices` measures it in its check of the input).
     deform_m: f32,
     /// Triangle across each of a triangle's edges, in parry's local edge numbering (0: AB,
     /// 1: BC, 2: AC).
@@ -1123,8 +1123,6 @@ fn directed_edge(tri: [u32; 3], a: u32, b: u32) -> (usize, bool) {
     (0, false)
 }
 
-/// Moves `live` to `target`, returning the largest squared displacement, m² (a maximum: the
-/// same in any order of chunks).
 /// Largest squared distance between matching points of `a` and `b`, in eight running maxima
 /// (one chain of dependent comparisons would wait on each), m². The maximum of the same
 /// distances whatever their order.
@@ -1142,6 +1140,8 @@ fn max_distance_sq(a: &[Vec3], b: &[Vec3]) -> f32 {
     lanes.into_iter().fold(0.0, f32::max)
 }
 
+/// Moves `live` to `target`, returning the largest squared displacement, m² (a maximum: the
+/// same in any order of chunks).
 fn move_to(live: &mut [Vec3], target: impl Iterator<Item = Vec3>) -> f32 {
     let mut moved_sq = 0.0f32;
     for (l, t) in live.iter_mut().zip(target) {
