@@ -8,7 +8,7 @@ use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{
     Ball, Capsule, CompositeShapeRef, TriMesh as ParryMesh, Triangle, TrianglePointLocation,
 };
-use std::sync::OnceLock;
+use std::sync::{OnceLock, PoisonError, RwLock};
 
 use super::CollisionError;
 use super::cache::{PATCH, Patch};
@@ -22,6 +22,18 @@ mod tests;
 
 /// Marks "no triangle" in neighbour tables and caches.
 pub(crate) const NONE: u32 = u32::MAX;
+
+/// Vertices per job of [`ColliderMesh::set_vertices`]'s check of its input (a few
+/// microseconds each: the checks spread over the threads that refit the parts).
+const CHECK_CHUNK: usize = 4096;
+
+/// One chunk of [`ColliderMesh::set_vertices`]'s check: whether its input is finite, and its
+/// largest squared displacements from the fitted vertices and from the previous frame's, m².
+struct Check {
+    finite: bool,
+    moved_sq: f32,
+    deform_sq: f32,
+}
 
 /// The closest point of a collider's surface to a query point, in the collider's local frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -65,7 +77,7 @@ struct MeshShape {
     /// Vertices of the current frame.
     current: Vec<Vec3>,
     /// Largest displacement from `prev` to `current`, m (kept with them: the frame plan reads
-    /// it several times, and `set_vertices` measures it in its one read of the input).
+    /// it several times, and `set_vertices` measures it in its check of the input).
     deform_m: f32,
     /// Triangle across each of a triangle's edges, in parry's local edge numbering (0: AB,
     /// 1: BC, 2: AC).
@@ -310,29 +322,49 @@ impl ColliderMesh {
                 expected: m.current.len(),
             });
         }
-        // One branch-free read of the arrays checks the input, bounds the motion and measures
-        // the frame's deformation.
-        let (mut finite, mut moved_sq, mut deform_sq) = (true, 0.0f32, 0.0f32);
-        for ((v, l), p) in vertices.iter().zip(&m.live).zip(&m.prev) {
-            finite &= v.is_finite();
-            moved_sq = moved_sq.max(l.distance_squared(*v));
-            deform_sq = deform_sq.max(p.distance_squared(*v));
-        }
-        if !finite {
+        // The parts' refits run next to the checks of the input, in chunks that also measure
+        // the motion and the frame's deformation, and, once every chunk is checked, the
+        // copies. A refit to a non-finite input is undone below: the parts' boxes depend only
+        // on the vertices they are fitted to.
+        let chunks = vertices.len().div_ceil(CHECK_CHUNK);
+        let checked: Vec<OnceLock<Check>> = (0..chunks).map(|_| OnceLock::new()).collect();
+        let (live, current, prev) = (RwLock::new(&mut m.live), &mut m.current, &m.prev);
+        let check = |c: usize| {
+            let range = c * CHECK_CHUNK..((c + 1) * CHECK_CHUNK).min(vertices.len());
+            let live = live.read().unwrap_or_else(PoisonError::into_inner);
+            let v = &vertices[range.clone()];
+            let _ = checked[c].set(Check {
+                finite: v.iter().all(|v| v.is_finite()),
+                moved_sq: max_distance_sq(&live[range.clone()], v),
+                deform_sq: max_distance_sq(&prev[range], v),
+            });
+        };
+        let all_finite = || checked.iter().all(|c| c.get().is_some_and(|c| c.finite));
+        m.parts.refit_with(&|g| vertices[g], chunks, check, || {
+            if all_finite() {
+                let mut live = live.write().unwrap_or_else(PoisonError::into_inner);
+                live.copy_from_slice(vertices);
+                current.copy_from_slice(vertices);
+            }
+        });
+        if !all_finite() {
+            let live = &m.live;
+            m.parts.refit_with(&|g| live[g], 0, |_| {}, || {});
             return Err(CollisionError::NonFinite {
                 what: "collider vertex",
                 index: vertices.iter().position(|v| !v.is_finite()).unwrap_or(0),
             });
         }
+        // Maxima: the same whatever the order.
+        let (moved_sq, deform_sq) = checked
+            .iter()
+            .filter_map(OnceLock::get)
+            .fold((0.0f32, 0.0f32), |(m, d), c| {
+                (m.max(c.moved_sq), d.max(c.deform_sq))
+            });
         let moved = moved_sq.sqrt();
         m.deform_m = deform_sq.sqrt();
         m.whole = OnceLock::new();
-        let (live, current) = (&mut m.live, &mut m.current);
-        // The copies are one more job next to the parts' refits.
-        m.parts.refit_with(&|g| vertices[g], || {
-            live.copy_from_slice(vertices);
-            current.copy_from_slice(vertices);
-        });
         self.local_aabb = m.parts.local_aabb();
         self.travel_m += moved as f64;
         Ok(())
@@ -428,9 +460,14 @@ impl ColliderMesh {
             // The parts interpolate their own vertices; one more job moves `live`.
             let live = &mut m.live;
             let mut moved_sq = 0.0f32;
-            m.parts.refit_with(&at, || {
-                moved_sq = move_to(live, (0..prev.len()).map(at));
-            });
+            m.parts.refit_with(
+                &at,
+                0,
+                |_| {},
+                || {
+                    moved_sq = move_to(live, (0..prev.len()).map(at));
+                },
+            );
             m.whole = OnceLock::new();
             self.travel_m += moved_sq.sqrt() as f64;
             self.local_aabb = m.parts.local_aabb();
@@ -1084,6 +1121,23 @@ fn directed_edge(tri: [u32; 3], a: u32, b: u32) -> (usize, bool) {
         }
     }
     (0, false)
+}
+
+/// Largest squared distance between matching points of `a` and `b`, in eight running maxima
+/// (one chain of dependent comparisons would wait on each), m². The maximum of the same
+/// distances whatever their order.
+fn max_distance_sq(a: &[Vec3], b: &[Vec3]) -> f32 {
+    let (a8, b8) = (a.chunks_exact(8), b.chunks_exact(8));
+    let mut lanes = [0.0f32; 8];
+    for (a, b) in a8.remainder().iter().zip(b8.remainder()) {
+        lanes[0] = lanes[0].max(a.distance_squared(*b));
+    }
+    for (a, b) in a8.zip(b8) {
+        for (k, lane) in lanes.iter_mut().enumerate() {
+            *lane = lane.max(a[k].distance_squared(b[k]));
+        }
+    }
+    lanes.into_iter().fold(0.0, f32::max)
 }
 
 /// Moves `live` to `target`, returning the largest squared displacement, m² (a maximum: the

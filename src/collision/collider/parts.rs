@@ -150,26 +150,49 @@ impl Parts {
     }
 
     /// Moves every part to the mesh vertices `source` gives (`source(g)`: vertex `g`),
-    /// refits the parts' BVHs and runs `extra` once.
+    /// refits the parts' BVHs, runs `check(c)` for every `c` in `0..checks` and then `extra`
+    /// once, after every `check` has returned.
     ///
-    /// The parts and `extra` are jobs taken in turn by the calling thread, which starts at
-    /// once, and by rayon tasks that join as threads come free: a busy machine costs no
-    /// worse than one thread doing it all, a free core halves the time. Each refit depends
+    /// The parts (largest first), the checks and `extra` are jobs taken in turn by the calling
+    /// thread, which starts at once, and by rayon tasks that join as threads come free: a busy
+    /// machine costs no worse than one thread doing it all, a free core halves the time, and
+    /// the short checks last even out the threads' ends. The thread that finishes the last
+    /// check runs `extra` (a caller's checks read what its `extra` writes). Each refit depends
     /// only on `source`: the result is the same whichever thread runs it, for any thread
     /// count.
-    pub(super) fn refit_with<S, E>(&mut self, source: &S, extra: E)
+    pub(super) fn refit_with<S, C, E>(&mut self, source: &S, checks: usize, check: C, extra: E)
     where
         S: Fn(usize) -> Vec3 + Sync,
+        C: Fn(usize) + Sync,
         E: FnOnce() + Send,
     {
         if let [part] = &mut self.parts[..] {
+            (0..checks).for_each(&check);
             extra();
             part.refit(source);
             return;
         }
-        let slots: Vec<Mutex<&mut Part>> = self.parts.iter_mut().map(Mutex::new).collect();
+        // Largest first: the last jobs are the smallest, so the threads finish together.
+        let mut order: Vec<usize> = (0..self.parts.len()).collect();
+        order.sort_by_key(|&p| std::cmp::Reverse(self.parts[p].mesh.indices().len()));
+        let mut slots: Vec<Option<Mutex<&mut Part>>> =
+            self.parts.iter_mut().map(|p| Some(Mutex::new(p))).collect();
+        let slots: Vec<Mutex<&mut Part>> = order
+            .iter()
+            .map(|&p| slots[p].take().expect("each part once"))
+            .collect();
         let extra = Mutex::new(Some(extra));
-        let next = AtomicUsize::new(0);
+        let run_extra = || {
+            let f = extra.lock().unwrap_or_else(PoisonError::into_inner).take();
+            if let Some(f) = f {
+                f();
+            }
+        };
+        // Jobs: the parts, then the checks (the smallest jobs last), then `extra` itself when
+        // there are no checks.
+        let parts = slots.len();
+        let jobs = parts + checks + usize::from(checks == 0);
+        let (next, checked) = (AtomicUsize::new(0), AtomicUsize::new(0));
         let work = || {
             loop {
                 let job = next.fetch_add(1, Ordering::Relaxed);
@@ -177,17 +200,21 @@ impl Parts {
                     slot.lock()
                         .unwrap_or_else(PoisonError::into_inner)
                         .refit(source);
-                } else if job == slots.len() {
-                    let f = extra.lock().unwrap_or_else(PoisonError::into_inner).take();
-                    if let Some(f) = f {
-                        f();
+                } else if job < parts + checks {
+                    check(job - parts);
+                    // The last check to finish (its reads and the others' before `extra`'s
+                    // writes: acquire-release) runs `extra`.
+                    if checked.fetch_add(1, Ordering::AcqRel) + 1 == checks {
+                        run_extra();
                     }
+                } else if job < jobs {
+                    run_extra();
                 } else {
                     break;
                 }
             }
         };
-        let helpers = rayon::current_num_threads().min(slots.len());
+        let helpers = rayon::current_num_threads().min(jobs - 1);
         rayon::in_place_scope(|scope| {
             for _ in 0..helpers {
                 scope.spawn(|_| work());

@@ -303,6 +303,100 @@ fn refit_is_the_same_on_one_and_two_threads() {
     }
 }
 
+/// The bench's 50k-triangle muscle (four parts, 25k vertices: several of `set_vertices`'
+/// checks) refitted inside a pool of one thread, of two, and from a thread outside any pool
+/// (the bench's and the ECS's case: the caller works next to the pool's threads): the same
+/// parts bit for bit, the answers of parry's own mesh refitted to the same shapes, and the
+/// motion and deformation bounds of a serial read of the shapes.
+#[test]
+fn bench_muscle_refits_alike_in_and_out_of_pools() {
+    let (v, t) = muscle(126, 200);
+    assert!(v.len() > 4 * CHECK_CHUNK, "{} vertices", v.len());
+    let shapes = [deform(&v, 0.6), deform(&v, 1.9)];
+    let base = ColliderMesh::from_mesh(v.clone(), t.clone()).unwrap();
+    assert!(
+        mesh(&base).parts.len() >= 4,
+        "{:?}",
+        mesh(&base).parts.sizes()
+    );
+    let run = |c: &mut ColliderMesh| {
+        c.set_vertices(&shapes[0]).unwrap();
+        c.commit_frame();
+        c.set_vertices(&shapes[1]).unwrap();
+    };
+    let pool = |n| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+    };
+    let mut runs = vec![base.clone(), base.clone(), base];
+    pool(1).install(|| run(&mut runs[0]));
+    pool(2).install(|| run(&mut runs[1]));
+    run(&mut runs[2]);
+    for c in &runs[1..] {
+        assert_eq!(
+            mesh(c).parts.fingerprint(),
+            mesh(&runs[0]).parts.fingerprint()
+        );
+    }
+    // The bounds: the largest displacements, read serially.
+    let largest = |a: &[Vec3], b: &[Vec3]| {
+        a.iter()
+            .zip(b)
+            .map(|(a, b)| a.distance_squared(*b))
+            .fold(0.0f32, f32::max)
+            .sqrt()
+    };
+    let travel = f64::from(largest(&v, &shapes[0])) + f64::from(largest(&shapes[0], &shapes[1]));
+    let deform_m = largest(&shapes[0], &shapes[1]);
+    for c in &runs {
+        assert_eq!(c.travel_m().to_bits(), travel.to_bits());
+        assert_eq!(c.frame_deform_m().to_bits(), deform_m.to_bits());
+    }
+    let mut reference = ParryMesh::new(v.clone(), t.clone()).unwrap();
+    reference.set_vertices(&shapes[1]);
+    let mut whole = ColliderMesh::from_mesh_in_parts(v.clone(), t, usize::MAX).unwrap();
+    whole.set_vertices(&shapes[1]).unwrap();
+    let mut rng = Lcg(29);
+    let points: Vec<Vec3> = probes(&runs[1], &mut rng).into_iter().step_by(4).collect();
+    assert_same_answers(
+        &runs[1],
+        &whole,
+        &reference,
+        &points,
+        &mut rng,
+        "two threads",
+    );
+
+    // A non-finite vertex in a late check and another in the last: the first is named, the
+    // collider is left exactly as it was (parts refitted back), on any pool.
+    let mut bad = deform(&v, 2.7);
+    let (first, last) = (3 * CHECK_CHUNK + 11, v.len() - 2);
+    bad[first].z = f32::NAN;
+    bad[last].x = f32::NEG_INFINITY;
+    for (k, c) in runs.iter_mut().enumerate() {
+        let fingerprint = mesh(c).parts.fingerprint();
+        let aabb = aabb_bits(c.local_aabb());
+        let mut refresh = || c.set_vertices(&bad);
+        let result = match k {
+            0 => pool(1).install(refresh),
+            1 => pool(2).install(refresh),
+            _ => refresh(),
+        };
+        match result {
+            Err(CollisionError::NonFinite { index, .. }) => assert_eq!(index, first),
+            other => panic!("expected NonFinite, got {other:?}"),
+        }
+        assert_eq!(mesh(c).parts.fingerprint(), fingerprint);
+        assert_eq!(aabb_bits(c.local_aabb()), aabb);
+        assert_eq!(mesh(c).live, shapes[1]);
+        assert_eq!(mesh(c).current, shapes[1]);
+        assert_eq!(c.travel_m().to_bits(), travel.to_bits());
+        assert_eq!(c.frame_deform_m().to_bits(), deform_m.to_bits());
+    }
+}
+
 /// The part rule: the bench's 50k-triangle muscle is refitted in parts of at most
 /// [`parts::PART_TRIANGLES`] (more than one), a small mesh in one; `parry_mesh` is the whole
 /// mesh in its current shape either way.
