@@ -117,7 +117,7 @@ impl Default for MotionPrediction {
 /// teleport, a rollback, a still frame) so the next prediction falls back to
 /// [`predict_from_anchors`]. Part of a checkpoint ([`targets`](Self::targets),
 /// [`deviations`](Self::deviations), [`from_parts`](Self::from_parts)).
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default)]
 pub struct MotionHistory {
     targets: Vec<Vec3>,
     deviations: Vec<Vec3>,
@@ -125,6 +125,15 @@ pub struct MotionHistory {
     offsets: Vec<u32>,
     neighbours: Vec<u32>,
     adjacency_key: (usize, usize),
+    /// Buffers reused from frame to frame (no allocation, no fresh pages, per prediction).
+    scratch: [Vec<Vec3>; 3],
+}
+
+/// Two histories are equal when they record the same solve (caches and buffers aside).
+impl PartialEq for MotionHistory {
+    fn eq(&self, other: &Self) -> bool {
+        self.targets == other.targets && self.deviations == other.deviations
+    }
 }
 
 impl MotionHistory {
@@ -242,7 +251,9 @@ pub fn predict_from_motion(
         return;
     }
     let anchored = |a: &VertexAnchor| a.k_normal > 0.0 || a.k_tangent > 0.0;
-    let deviations: Vec<Vec3> = x.iter().zip(prev).map(|(p, a)| *p - a.target).collect();
+    let [mut deviations, mut delta, mut spare] = std::mem::take(&mut history.scratch);
+    deviations.clear();
+    deviations.extend(x.iter().zip(prev).map(|(p, a)| *p - a.target));
     let mut ratio = 0.0f32;
     if history.targets.len() == n && history.deviations.len() == n {
         let (mut num, mut den) = (0.0f64, 0.0f64);
@@ -261,22 +272,26 @@ pub fn predict_from_motion(
     }
     let s = prediction.gain * ratio;
     if s != 0.0 && s.is_finite() {
-        let mut delta: Vec<Vec3> = (0..n)
-            .map(|i| {
-                let a = &prev[i];
-                if !anchored(a) {
-                    return Vec3::ZERO;
-                }
-                let du = deviations[i] - history.deviations[i];
-                s * (du - a.normal * a.normal.dot(du))
-            })
-            .collect();
+        delta.clear();
+        delta.extend(
+            prev.iter()
+                .zip(&deviations)
+                .zip(&history.deviations)
+                .map(|((a, u), u0)| {
+                    if !anchored(a) {
+                        return Vec3::ZERO;
+                    }
+                    let du = *u - *u0;
+                    s * (du - a.normal * a.normal.dot(du))
+                }),
+        );
         if prediction.smoothing_sweeps > 0 && !edges.is_empty() {
+            spare.clear();
+            spare.resize(n, Vec3::ZERO);
             let (offsets, neighbours) = history.adjacency(n, edges);
-            let mut next_delta = vec![Vec3::ZERO; n];
             for _ in 0..prediction.smoothing_sweeps {
-                smooth_sweep(&delta, &mut next_delta, offsets, neighbours);
-                std::mem::swap(&mut delta, &mut next_delta);
+                smooth_sweep(&delta, &mut spare, offsets, neighbours);
+                std::mem::swap(&mut delta, &mut spare);
             }
         }
         for (((p, a), b), d) in x.iter_mut().zip(prev).zip(next).zip(&delta) {
@@ -292,7 +307,8 @@ pub fn predict_from_motion(
     }
     history.targets.clear();
     history.targets.extend(prev.iter().map(|a| a.target));
-    history.deviations = deviations;
+    std::mem::swap(&mut history.deviations, &mut deviations);
+    history.scratch = [deviations, delta, spare];
 }
 
 /// One Jacobi sweep: each vertex's value averaged with its neighbours'.
