@@ -96,12 +96,13 @@ pub struct MotionPrediction {
 }
 
 impl MotionPrediction {
-    /// Gain 1, 8 smoothing sweeps. Measured paired (each frame from the same state) on the
-    /// bench's elbow clip: 8 % fewer iterations than [`predict_from_anchors`] at tube-10k, 4 %
-    /// at 30k and 100k (see `benches/README.md`, session 7).
+    /// Gain 1, 4 smoothing sweeps. Measured paired (each frame from the same state) on the
+    /// bench's elbow clip against [`predict_from_anchors`]: 7.4 % fewer iterations at tube-10k
+    /// (better in 45 frames of 60, worse in 13), 1.6 % at tube-100k (32 / 22); see
+    /// `benches/README.md`, session 7.
     pub const DEFAULT: Self = Self {
         gain: 1.0,
-        smoothing_sweeps: 8,
+        smoothing_sweeps: 4,
     };
 }
 
