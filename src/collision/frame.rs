@@ -103,7 +103,7 @@ impl MotionPrediction {
     /// `benches/README.md`, session 7.
     pub const DEFAULT: Self = Self {
         gain: 1.0,
-        smoothing_sweeps: 4,
+        smoothing_sweeps: 2,
     };
 }
 
@@ -178,12 +178,22 @@ impl MotionHistory {
     }
 }
 
-/// A mesh's vertex adjacency in compressed rows: vertex `v`'s neighbours are
-/// `neighbours[offsets[v]..offsets[v + 1]]`, in the order of the edges.
+/// Neighbours a vertex keeps in its row of [`Adjacency`] (a regular triangle mesh's interior
+/// vertices have six); a vertex with more keeps the rest in the overflow list.
+const ROW: usize = 6;
+
+/// A mesh's vertex adjacency laid out for the smoothing sweeps: per vertex a fixed row of
+/// [`ROW`] neighbours (padded with the index `n`, where the fields keep a zero), the rest of
+/// a vertex's neighbours in an overflow list by vertex, and the mean's weight `1 / (1 +
+/// degree)`. Neighbours in the order of the edges.
 #[derive(Debug, Clone, Default)]
 struct Adjacency {
-    offsets: Vec<u32>,
-    neighbours: Vec<u32>,
+    rows: Vec<[u32; ROW]>,
+    weights: Vec<f32>,
+    /// `(vertex, neighbour)` pairs past a full row, by vertex.
+    overflow: Vec<[u32; 2]>,
+    /// Per chunk of [`MOTION_CHUNK`] vertices its first pair in `overflow`, and the end.
+    overflow_starts: Vec<u32>,
     /// The vertex and edge counts it was built for.
     key: (usize, usize),
 }
@@ -192,52 +202,86 @@ impl Adjacency {
     /// Rebuilds the rows for `n` vertices and `edges` unless they were built for the same
     /// counts. Edges naming a vertex past `n` are left out.
     fn update(&mut self, n: usize, edges: &[[u32; 2]]) {
-        if self.key == (n, edges.len()) && self.offsets.len() == n + 1 {
+        if self.key == (n, edges.len()) && self.rows.len() == n {
             return;
         }
+        let sentinel = u32::try_from(n).unwrap_or(u32::MAX);
+        let mut rows = vec![[sentinel; ROW]; n];
+        let mut degree = vec![0usize; n];
+        let mut overflow = Vec::new();
         let inside = |&&[a, b]: &&[u32; 2]| (a as usize) < n && (b as usize) < n;
-        let mut offsets = vec![0u32; n + 1];
         for &[a, b] in edges.iter().filter(inside) {
-            offsets[a as usize + 1] += 1;
-            offsets[b as usize + 1] += 1;
+            for (v, w) in [(a, b), (b, a)] {
+                let d = &mut degree[v as usize];
+                match rows[v as usize].get_mut(*d) {
+                    Some(slot) => *slot = w,
+                    None => overflow.push([v, w]),
+                }
+                *d += 1;
+            }
         }
-        for v in 0..n {
-            offsets[v + 1] += offsets[v];
-        }
-        let mut fill = offsets.clone();
-        let mut neighbours = vec![0u32; offsets[n] as usize];
-        for &[a, b] in edges.iter().filter(inside) {
-            neighbours[fill[a as usize] as usize] = b;
-            fill[a as usize] += 1;
-            neighbours[fill[b as usize] as usize] = a;
-            fill[b as usize] += 1;
-        }
+        // By vertex, each vertex's pairs still in the order of the edges.
+        overflow.sort_by_key(|&[v, _]| v);
+        let chunks = n.div_ceil(MOTION_CHUNK);
+        let overflow_starts = (0..=chunks)
+            .map(|c| {
+                let first = (c * MOTION_CHUNK) as u64;
+                overflow.partition_point(|&[v, _]| u64::from(v) < first) as u32
+            })
+            .collect();
         *self = Self {
-            offsets,
-            neighbours,
+            rows,
+            weights: degree.iter().map(|&d| 1.0 / (1 + d) as f32).collect(),
+            overflow,
+            overflow_starts,
             key: (n, edges.len()),
         };
     }
 
-    /// The mean of `field` over vertex `v` and its neighbours.
-    #[inline]
-    fn mean(&self, field: &[Vec3A], v: usize) -> Vec3A {
-        let (lo, hi) = (self.offsets[v] as usize, self.offsets[v + 1] as usize);
-        let mut sum = field[v];
-        for &w in &self.neighbours[lo..hi] {
-            sum += field[w as usize];
+    /// Chunk `c`'s rows, weights and overflow pairs.
+    fn chunk(&self, c: usize) -> (&[[u32; ROW]], &[f32], &[[u32; 2]]) {
+        let range = c * MOTION_CHUNK..((c + 1) * MOTION_CHUNK).min(self.rows.len());
+        let overflow =
+            &self.overflow[self.overflow_starts[c] as usize..self.overflow_starts[c + 1] as usize];
+        (&self.rows[range.clone()], &self.weights[range], overflow)
+    }
+
+    /// The mean of `field` over vertex `v` (its `row` and `weight`) and its neighbours,
+    /// taking `v`'s pairs off the front of `overflow`. `field` holds a zero at index `n`.
+    #[inline(always)]
+    fn mean(
+        field: &[Vec3A],
+        v: usize,
+        row: &[u32; ROW],
+        weight: f32,
+        overflow: &mut &[[u32; 2]],
+    ) -> Vec3A {
+        let f = |w: u32| field[w as usize];
+        let mut sum = (field[v] + f(row[0]))
+            + (f(row[1]) + f(row[2]))
+            + ((f(row[3]) + f(row[4])) + f(row[5]));
+        while let [[u, w], rest @ ..] = *overflow
+            && *u as usize == v
+        {
+            sum += f(*w);
+            *overflow = rest;
         }
-        sum / (1 + hi - lo) as f32
+        sum * weight
     }
 
     /// One Jacobi sweep: each vertex's value of `from` averaged with its neighbours', into
-    /// `to`.
+    /// `to` (both with the zero at index `n`).
     fn smooth(&self, from: &[Vec3A], to: &mut [Vec3A]) {
-        to.par_chunks_mut(MOTION_CHUNK)
+        let n = self.rows.len();
+        to[..n]
+            .par_chunks_mut(MOTION_CHUNK)
             .enumerate()
             .for_each(|(c, chunk)| {
-                for (k, out) in chunk.iter_mut().enumerate() {
-                    *out = self.mean(from, c * MOTION_CHUNK + k);
+                let (rows, weights, mut overflow) = self.chunk(c);
+                for (k, ((out, row), &weight)) in
+                    chunk.iter_mut().zip(rows).zip(weights).enumerate()
+                {
+                    *out = Self::mean(from, c * MOTION_CHUNK + k, row, weight, &mut overflow);
                 }
             });
     }
@@ -315,7 +359,9 @@ pub fn predict_from_motion(
         deviations.clear();
         deviations.resize(n, Vec3::ZERO);
     }
-    field.resize(n, Vec3A::ZERO);
+    // The fields keep a zero past the last vertex, where the rows' padding points.
+    field.resize(n + 1, Vec3A::ZERO);
+    field[n] = Vec3A::ZERO;
     anchored.resize(n, false);
     sums.clear();
     sums.resize(n.div_ceil(MOTION_CHUNK), [0.0; 2]);
@@ -328,35 +374,41 @@ pub fn predict_from_motion(
         next.par_chunks(MOTION_CHUNK),
         targets.par_chunks_mut(MOTION_CHUNK),
         deviations.par_chunks_mut(MOTION_CHUNK),
-        field.par_chunks_mut(MOTION_CHUNK),
+        field[..n].par_chunks_mut(MOTION_CHUNK),
         anchored.par_chunks_mut(MOTION_CHUNK),
         sums.par_iter_mut(),
     )
         .into_par_iter()
-        .for_each(|(x, prev, next, targets, deviations, field, anchored, sums)| {
-            let (mut num, mut den) = (0.0f64, 0.0f64);
-            for (k, (a, b)) in prev.iter().zip(next).enumerate() {
-                let on = a.k_normal > 0.0 || a.k_tangent > 0.0;
-                let u = x[k] - a.target;
-                let carry = b.target - a.target;
-                let mut change = Vec3A::ZERO;
-                if recorded && on {
-                    let last = a.target - targets[k];
-                    num += f64::from(carry.dot(last));
-                    den += f64::from(last.length_squared());
-                    let du = u - deviations[k];
-                    change = Vec3A::from(du - a.normal * a.normal.dot(du));
+        .for_each(
+            |(x, prev, next, targets, deviations, field, anchored, sums)| {
+                let (mut num, mut den) = (Vec3A::ZERO, Vec3A::ZERO);
+                let vertices = x
+                    .iter_mut()
+                    .zip(prev.iter().zip(next))
+                    .zip(targets.iter_mut().zip(deviations.iter_mut()))
+                    .zip(field.iter_mut().zip(anchored.iter_mut()));
+                for (((p, (a, b)), (target, deviation)), (change, on)) in vertices {
+                    let anchored = a.k_normal > 0.0 || a.k_tangent > 0.0;
+                    let u = *p - a.target;
+                    let carry = b.target - a.target;
+                    *change = Vec3A::ZERO;
+                    if recorded && anchored {
+                        let last = Vec3A::from(a.target - *target);
+                        num += Vec3A::from(carry) * last;
+                        den += last * last;
+                        let du = u - *deviation;
+                        *change = Vec3A::from(du - a.normal * a.normal.dot(du));
+                    }
+                    *target = a.target;
+                    *deviation = u;
+                    *on = anchored;
+                    if anchored && carry.is_finite() {
+                        *p += carry;
+                    }
                 }
-                targets[k] = a.target;
-                deviations[k] = u;
-                field[k] = change;
-                anchored[k] = on;
-                if on && carry.is_finite() {
-                    x[k] += carry;
-                }
-            }
-            *sums = [num, den];
-        });
+                *sums = [f64::from(num.element_sum()), f64::from(den.element_sum())];
+            },
+        );
 
     let (num, den) = sums
         .iter()
@@ -376,28 +428,45 @@ pub fn predict_from_motion(
         adjacency.update(n, edges);
         prediction.smoothing_sweeps
     };
-    spare.resize(n, Vec3A::ZERO);
-    for _ in 1..sweeps {
-        adjacency.smooth(field, spare);
-        std::mem::swap(field, spare);
+    if sweeps > 1 {
+        spare.resize(n + 1, Vec3A::ZERO);
+        spare[n] = Vec3A::ZERO;
+        for _ in 1..sweeps {
+            adjacency.smooth(field, spare);
+            std::mem::swap(field, spare);
+        }
     }
     let (field, adjacency) = (&*field, &*adjacency);
     x.par_chunks_mut(MOTION_CHUNK)
         .zip(anchored.par_chunks(MOTION_CHUNK))
         .enumerate()
         .for_each(|(c, (x, anchored))| {
-            for (k, (p, &on)) in x.iter_mut().zip(anchored).enumerate() {
+            let apply = |p: &mut Vec3, d: Vec3A| {
+                let m = Vec3::from(s * d);
+                if m.is_finite() {
+                    *p += m;
+                }
+            };
+            let first = c * MOTION_CHUNK;
+            if sweeps == 0 {
+                for (k, (p, _)) in x
+                    .iter_mut()
+                    .zip(anchored)
+                    .enumerate()
+                    .filter(|(_, (_, on))| **on)
+                {
+                    apply(p, field[first + k]);
+                }
+                return;
+            }
+            let (rows, weights, mut overflow) = adjacency.chunk(c);
+            let vertices = x.iter_mut().zip(anchored).zip(rows.iter().zip(weights));
+            for (k, ((p, &on), (row, &weight))) in vertices.enumerate() {
+                let v = first + k;
+                // Every vertex's overflow pairs are taken, anchored or not.
+                let d = Adjacency::mean(field, v, row, weight, &mut overflow);
                 if on {
-                    let v = c * MOTION_CHUNK + k;
-                    let d = if sweeps > 0 {
-                        adjacency.mean(field, v)
-                    } else {
-                        field[v]
-                    };
-                    let m = Vec3::from(s * d);
-                    if m.is_finite() {
-                        *p += m;
-                    }
+                    apply(p, d);
                 }
             }
         });
@@ -747,9 +816,9 @@ mod tests {
         adjacency.smooth(&spike, &mut out);
         for (w, p) in out.iter().enumerate() {
             let touches = w == c
-                || edges
-                    .iter()
-                    .any(|&[a, b]| (a as usize, b as usize) == (w, c) || (b as usize, a as usize) == (w, c));
+                || edges.iter().any(|&[a, b]| {
+                    (a as usize, b as usize) == (w, c) || (b as usize, a as usize) == (w, c)
+                });
             let expected = if touches {
                 Vec3A::X / (1 + degree[w]) as f32
             } else {
@@ -896,7 +965,11 @@ mod tests {
         let one = run(1);
         for threads in [2, 3] {
             for ((x1, h1), (x2, h2)) in one.iter().zip(&run(threads)) {
-                let bits = |x: &[Vec3]| x.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+                let bits = |x: &[Vec3]| {
+                    x.iter()
+                        .map(|p| p.to_array().map(f32::to_bits))
+                        .collect::<Vec<_>>()
+                };
                 assert_eq!(bits(x1), bits(x2));
                 assert_eq!(bits(h1.targets()), bits(h2.targets()));
                 assert_eq!(bits(h1.deviations()), bits(h2.deviations()));
