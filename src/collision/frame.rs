@@ -97,10 +97,11 @@ pub struct MotionPrediction {
 }
 
 impl MotionPrediction {
-    /// Gain 1, 4 smoothing sweeps. Measured paired (each frame from the same state) on the
-    /// bench's elbow clip against [`predict_from_anchors`]: 7.4 % fewer iterations at tube-10k
-    /// (better in 45 frames of 60, worse in 13), 1.6 % at tube-100k (32 / 22); see
-    /// `benches/README.md`, session 7.
+    /// Gain 1, 2 smoothing sweeps. Measured paired (each frame of the bench's elbow clip, 60
+    /// frames, from the same state) against [`predict_from_anchors`]: 9.8 % fewer iterations
+    /// at tube-10k (better in 46 frames, worse in 11; 4 sweeps 7.4 %, none 12.1 %), 2.8 % at
+    /// tube-100k (31 / 21, within that size's noise; 4 sweeps 0.9 %, none 8.6 % more); see
+    /// `benches/README.md`, sessions 7 and 9.
     pub const DEFAULT: Self = Self {
         gain: 1.0,
         smoothing_sweeps: 2,

