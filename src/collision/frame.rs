@@ -801,21 +801,23 @@ mod tests {
         let edges = mesh.topology().edges();
         let mut adjacency = Adjacency::default();
         adjacency.update(n, edges);
-        let uniform = vec![Vec3A::new(0.25, -0.5, 1.0); n];
-        let mut out = vec![Vec3A::ZERO; n];
+        // The fields hold a zero past the last vertex (where the rows' padding points).
+        let mut uniform = vec![Vec3A::new(0.25, -0.5, 1.0); n + 1];
+        uniform[n] = Vec3A::ZERO;
+        let mut out = vec![Vec3A::ZERO; n + 1];
         adjacency.smooth(&uniform, &mut out);
-        assert_eq!(out, uniform);
+        assert_eq!(out[..n], uniform[..n]);
         let mut degree = vec![0usize; n];
         for &[a, b] in edges {
             degree[a as usize] += 1;
             degree[b as usize] += 1;
         }
         let c = n / 2;
-        let spike: Vec<Vec3A> = (0..n)
+        let spike: Vec<Vec3A> = (0..=n)
             .map(|i| if i == c { Vec3A::X } else { Vec3A::ZERO })
             .collect();
         adjacency.smooth(&spike, &mut out);
-        for (w, p) in out.iter().enumerate() {
+        for (w, p) in out[..n].iter().enumerate() {
             let touches = w == c
                 || edges.iter().any(|&[a, b]| {
                     (a as usize, b as usize) == (w, c) || (b as usize, a as usize) == (w, c)
@@ -826,6 +828,42 @@ mod tests {
                 Vec3A::ZERO
             };
             assert_eq!(*p, expected, "vertex {w}");
+        }
+    }
+
+    #[test]
+    fn smoothing_over_vertices_of_any_degree_is_the_neighbourhood_mean() {
+        // A graph over three chunks with hubs of degree 20+ (their neighbours past the row go
+        // to the overflow list, some across chunk boundaries), isolated vertices and edges
+        // naming a missing vertex (left out): each output is the plain mean over the vertex
+        // and its neighbours, counted from the edge list.
+        let n = 3 * MOTION_CHUNK + 100;
+        let mut edges: Vec<[u32; 2]> = (0..n as u32 - 2)
+            .filter(|v| v % 97 != 5)
+            .flat_map(|v| [[v, v + 1], [v, v + 2]])
+            .collect();
+        for hub in (0..n as u32).step_by(500) {
+            edges.extend((1..=20).map(|k| [hub, (hub + 37 * k) % n as u32]));
+        }
+        edges.push([3, n as u32 + 4]);
+        let mut around = vec![vec![]; n];
+        for &[a, b] in edges.iter().filter(|e| e[1] < n as u32) {
+            around[a as usize].push(b as usize);
+            around[b as usize].push(a as usize);
+        }
+        assert!(around.iter().any(|a| a.len() > 2 * ROW));
+        let mut adjacency = Adjacency::default();
+        adjacency.update(n, &edges);
+        let mut field: Vec<Vec3A> = (0..n)
+            .map(|i| Vec3A::new((i % 13) as f32, -((i % 7) as f32), (i * i % 11) as f32))
+            .collect();
+        field.push(Vec3A::ZERO);
+        let mut out = vec![Vec3A::ZERO; n + 1];
+        adjacency.smooth(&field, &mut out);
+        for (v, p) in out[..n].iter().enumerate() {
+            let sum = around[v].iter().fold(field[v], |s, &w| s + field[w]);
+            let mean = sum / (1 + around[v].len()) as f32;
+            assert!(p.distance(mean) < 1e-5, "vertex {v}: {p} vs {mean}");
         }
     }
 
