@@ -28,7 +28,8 @@ use super::TubeWorkload;
 use crate::collision::shapes::ellipsoid;
 use crate::collision::{
     ColliderId, ColliderMesh, CollisionError, ContactConfig, FrameError, FrameSchedule,
-    SkinCollision, predict_from_anchors, relax_frame,
+    MotionHistory, MotionPrediction, SkinCollision, predict_from_anchors, predict_from_motion,
+    relax_frame,
 };
 use crate::solver::{Loads, RelaxConfig, RelaxReport, SolverError, VertexAnchor};
 
@@ -301,6 +302,11 @@ pub struct ArmRun {
     pub frame: usize,
     /// Warm-start each frame from the anchors' motion ([`predict_from_anchors`]).
     pub predict: bool,
+    /// With [`predict`](Self::predict): extrapolate the skin's deviation from its anchors too
+    /// ([`predict_from_motion`], the ECS's warm start); `None`: the anchors' motion alone.
+    pub motion: Option<MotionPrediction>,
+    /// The last solve's deviation from its anchors, for [`motion`](Self::motion).
+    pub history: MotionHistory,
     /// How a frame spends its iterations over its substeps.
     pub schedule: FrameSchedule,
     /// The last frame's relaxation.
@@ -348,6 +354,8 @@ impl ArmRun {
             ids,
             frame,
             predict: true,
+            motion: Some(MotionPrediction::DEFAULT),
+            history: MotionHistory::default(),
             schedule: FrameSchedule::DEFAULT,
             last: None,
         })
@@ -379,11 +387,21 @@ impl ArmRun {
         };
         let system = &work.tube.system;
         // The warm start (timed with the frame: the ECS pays it too): each vertex carried by its
-        // anchor's motion since the last frame.
+        // anchor's motion since the last frame (and its deviation from the anchor extrapolated).
         let prev = self.predict.then(|| work.anchors(self.frame));
         let start = Instant::now();
         if let Some(prev) = prev {
-            predict_from_anchors(&mut self.x, &prev, &anchors);
+            match &self.motion {
+                Some(motion) => predict_from_motion(
+                    &mut self.x,
+                    &mut self.history,
+                    &prev,
+                    &anchors,
+                    work.tube.mesh.topology().edges(),
+                    motion,
+                ),
+                None => predict_from_anchors(&mut self.x, &prev, &anchors),
+            }
         }
 
         let refresh = Instant::now();

@@ -10,7 +10,8 @@ pub mod shapes;
 
 pub use collider::{ColliderMesh, SurfaceProjection};
 pub use frame::{
-    FrameError, FrameRelax, FrameSchedule, SUBSTEP_ITERATIONS, predict_from_anchors, relax_frame,
+    FrameError, FrameRelax, FrameSchedule, MotionHistory, MotionPrediction, SUBSTEP_ITERATIONS,
+    predict_from_anchors, predict_from_motion, relax_frame,
 };
 
 use glam::Vec3;

@@ -948,6 +948,14 @@ pub struct SkinState {
     /// empty without collision). Absent from older checkpoints: no anchors then.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub friction_anchors: Vec<Option<FrictionAnchor>>,
+    /// The anchor targets of the solve before the captured frame's, welded order, m: half of
+    /// the warm start's deviation history ([`MotionHistory`](crate::collision::MotionHistory);
+    /// empty: none). Absent from older checkpoints: no history then.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub motion_targets: Vec<Vec3>,
+    /// The skin's deviation from those targets at that solve, welded order, m.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub motion_deviations: Vec<Vec3>,
 }
 
 /// Captures the state of the scene in `world` at a frame boundary (after a schedule run).
@@ -983,6 +991,12 @@ fn capture(world: &World) -> Result<SceneState, SceneError> {
             friction_anchors: world
                 .get::<SkinContact>(entity)
                 .map_or_else(Vec::new, |c| c.collision.friction_anchors()),
+            motion_targets: world
+                .get::<SolvedAnchors>(entity)
+                .map_or_else(Vec::new, |s| s.1.targets().to_vec()),
+            motion_deviations: world
+                .get::<SolvedAnchors>(entity)
+                .map_or_else(Vec::new, |s| s.1.deviations().to_vec()),
         })
         .collect();
     skins.sort_by_key(|s| (s.node, s.primitive));
@@ -1024,6 +1038,7 @@ pub fn restore_state(world: &mut World, state: &SceneState) -> Result<(), SceneE
         &mut SkinPositions,
         &mut LastValidPositions,
         Option<&mut SkinContact>,
+        Option<&mut SolvedAnchors>,
     )>();
     let count = query.iter(world).count();
     if count != state.skins.len() {
@@ -1032,7 +1047,7 @@ pub fn restore_state(world: &mut World, state: &SceneState) -> Result<(), SceneE
             state.skins.len()
         ));
     }
-    for (tag, mut x, mut last, contact) in query.iter_mut(world) {
+    for (tag, mut x, mut last, contact, solved) in query.iter_mut(world) {
         let Some(s) = state
             .skins
             .iter()
@@ -1050,6 +1065,28 @@ pub fn restore_state(world: &mut World, state: &SceneState) -> Result<(), SceneE
         }
         x.0.copy_from_slice(&s.positions);
         last.0.copy_from_slice(&s.last_valid);
+        if let Some(mut solved) = solved {
+            let history = if s.motion_targets.is_empty() && s.motion_deviations.is_empty() {
+                Some(crate::collision::MotionHistory::default())
+            } else if s.motion_targets.len() == x.len() {
+                crate::collision::MotionHistory::from_parts(
+                    s.motion_targets.clone(),
+                    s.motion_deviations.clone(),
+                )
+            } else {
+                None
+            };
+            let Some(history) = history else {
+                return mismatch(format!(
+                    "skin {}: {} motion targets and {} deviations captured for {} vertices",
+                    tag.name,
+                    s.motion_targets.len(),
+                    s.motion_deviations.len(),
+                    x.len()
+                ));
+            };
+            solved.1 = history;
+        }
         if let Some(mut contact) = contact {
             let collision = &mut contact.collision;
             collision.clear_cache();

@@ -207,7 +207,7 @@ impl SkinBuilder {
             positions: SkinPositions(positions),
             // The skin starts where its anchors put it: the first frame's warm start carries it
             // by their motion from here.
-            solved_anchors: SolvedAnchors(anchors.clone()),
+            solved_anchors: SolvedAnchors(anchors.clone(), Default::default()),
             anchors: SkinAnchors(anchors),
             loads: ExternalLoads {
                 forces_n: self.forces,

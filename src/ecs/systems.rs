@@ -263,6 +263,10 @@ fn relax_one(
     diagnostics.present = present;
     if still && diagnostics.stop == Some(StopReason::Converged) {
         diagnostics.iterations = 0;
+        // A still frame ends the motion: the next start is the anchors' motion alone.
+        if let Some(solved) = solved_anchors.as_mut() {
+            solved.bypass_change_detection().1.clear();
+        }
         return Vec::new();
     }
     diagnostics.stop = None;
@@ -340,13 +344,23 @@ fn relax_one(
             .map(|a| &a.0[..]),
     };
     let x = &mut positions.bypass_change_detection().0;
-    // Warm start: the skin carried by its anchors' motion since the last solve.
+    // Warm start: the skin carried by its anchors' motion since the last solve, its
+    // deviation from them extrapolated.
     let mut predicted = false;
     if let (Some(solved), Some(anchors)) = (solved_anchors.as_mut(), solver_loads.anchors) {
         let solved = solved.bypass_change_detection();
         if solved.0.len() == anchors.len() && solved.0 != anchors {
-            crate::collision::predict_from_anchors(x, &solved.0, anchors);
+            crate::collision::predict_from_motion(
+                x,
+                &mut solved.1,
+                &solved.0,
+                anchors,
+                rest.mesh().topology().edges(),
+                &crate::collision::MotionPrediction::DEFAULT,
+            );
             predicted = true;
+        } else {
+            solved.1.clear();
         }
         solved.0.clear();
         solved.0.extend_from_slice(anchors);
@@ -367,6 +381,9 @@ fn relax_one(
             if let Some(v) = first_non_finite(x) {
                 x.copy_from_slice(last_valid);
                 quarantine(NonFiniteInput::Result, v, diagnostics);
+                if let Some(solved) = solved_anchors.as_mut() {
+                    solved.bypass_change_detection().1.clear();
+                }
             } else {
                 last_valid.0.copy_from_slice(x);
                 diagnostics.iterations = report.iterations;

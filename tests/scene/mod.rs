@@ -15,6 +15,7 @@ use parry3d::query::PointQuery;
 use parry3d::shape::{TriMesh as ParryMesh, TriMeshFlags};
 
 mod friction;
+mod warm_start;
 
 fn arm() -> Scene {
     load(
