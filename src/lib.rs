@@ -41,6 +41,21 @@ pub mod paper;
 pub mod solver;
 pub mod stiffness;
 
+#[cfg(test)]
+mod test_support {
+    //! What several modules' unit tests share.
+
+    /// Runs `f` on a fresh rayon pool of `threads` threads (for tests that results do not
+    /// depend on the thread count).
+    pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("a thread pool")
+            .install(f)
+    }
+}
+
 /// The types most programs need.
 pub mod prelude {
     pub use crate::mesh::{TetMesh, TopologyError, TriMesh};

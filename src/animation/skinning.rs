@@ -224,11 +224,7 @@ mod tests {
         let mut inf = Influences::new(2, (0..n).flat_map(|_| [0, 1]).collect(), w).unwrap();
         inf.normalize().unwrap();
         let a = skin_positions(&positions, &inf, &joints);
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
-        let b = pool.install(|| skin_positions(&positions, &inf, &joints));
+        let b = crate::test_support::in_pool(1, || skin_positions(&positions, &inf, &joints));
         assert_eq!(a, b);
         let p = positions[5];
         let (w0, w1) = (inf.weights_of(5)[0], inf.weights_of(5)[1]);

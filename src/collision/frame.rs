@@ -974,11 +974,7 @@ mod tests {
         };
         let prediction = MotionPrediction::DEFAULT;
         let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| {
+            crate::test_support::in_pool(threads, || {
                 let mut history = MotionHistory::default();
                 let mut out = vec![];
                 for t in 0..3 {

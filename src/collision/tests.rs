@@ -677,11 +677,7 @@ fn per_vertex_thickness_and_results_independent_of_thread_count() {
     let points: Vec<Vec3> = (0..n).map(|_| rng.point(0.35)).collect();
     let thickness: Vec<f32> = (0..n).map(|i| 0.002 + 0.01 * (i % 5) as f32).collect();
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        crate::test_support::in_pool(threads, || {
             let mut c = SkinCollision::new(n, ContactConfig::DEFAULT)
                 .unwrap()
                 .with_thickness(&thickness)
@@ -904,11 +900,7 @@ fn far_fast_colliders_cost_no_substep_near_ones_do() {
 #[test]
 fn contact_solve_is_bit_identical_for_any_thread_count() {
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        crate::test_support::in_pool(threads, || {
             let (mut drape, mut contact) = Drape::new(33);
             let report = drape.relax(&budget(300), &mut contact);
             (drape.x, report)

@@ -484,11 +484,7 @@ fn results_are_bit_identical_for_any_thread_count() {
         ..RelaxConfig::DEFAULT
     };
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        crate::test_support::in_pool(threads, || {
             let mut x = x0.clone();
             let report = s.relax(&mut x, &loads, &cfg).unwrap();
             (x, report)

@@ -4,9 +4,9 @@ use std::path::Path;
 
 use bevy_ecs::prelude::*;
 use dermis::ecs::{
-    DermisPlugin, SceneAnimation, SceneError, SceneOptions, SceneSkin, SkinAnchors, Tissue,
-    capture_state, collider_geometry, restore_state, scene_diagnostics, scene_skin_positions,
-    spawn_scene,
+    DermisPlugin, SceneAnimation, SceneError, SceneOptions, SceneSkin, SceneState, SkinAnchors,
+    Tissue, capture_state, collider_geometry, restore_state, scene_diagnostics,
+    scene_skin_positions, spawn_scene,
 };
 use dermis::gltf::{GltfError, LoadOptions, Role, Scene, load};
 use glam::Vec3;
@@ -51,6 +51,22 @@ fn run(world: &mut World, schedule: &mut Schedule, frames: usize) {
 
 fn bits(x: &[Vec3]) -> Vec<[u32; 3]> {
     x.iter().map(|p| p.to_array().map(f32::to_bits)).collect()
+}
+
+/// `frames` frames run in a fresh world of `scene` restored from `state` (through its JSON
+/// form, as a checkpoint file holds it): the world, and the bits of its skin's positions.
+fn resumed(
+    scene: &Scene,
+    options: &SceneOptions,
+    state: &SceneState,
+    frames: usize,
+) -> (World, Vec<[u32; 3]>) {
+    let (mut world, mut schedule, spawned) = world_with(scene, options);
+    let json = serde_json::to_string(state).unwrap();
+    restore_state(&mut world, &serde_json::from_str(&json).unwrap()).unwrap();
+    run(&mut world, &mut schedule, frames);
+    let x = scene_skin_positions(&world, spawned.skins[0].entity).unwrap();
+    (world, bits(&x))
 }
 
 #[test]

@@ -324,15 +324,9 @@ fn bench_muscle_refits_alike_in_and_out_of_pools() {
         c.commit_frame();
         c.set_vertices(&shapes[1]).unwrap();
     };
-    let pool = |n| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build()
-            .unwrap()
-    };
     let mut runs = vec![base.clone(), base.clone(), base];
-    pool(1).install(|| run(&mut runs[0]));
-    pool(2).install(|| run(&mut runs[1]));
+    crate::test_support::in_pool(1, || run(&mut runs[0]));
+    crate::test_support::in_pool(2, || run(&mut runs[1]));
     run(&mut runs[2]);
     for c in &runs[1..] {
         assert_eq!(
@@ -380,8 +374,8 @@ fn bench_muscle_refits_alike_in_and_out_of_pools() {
         let aabb = aabb_bits(c.local_aabb());
         let mut refresh = || c.set_vertices(&bad);
         let result = match k {
-            0 => pool(1).install(refresh),
-            1 => pool(2).install(refresh),
+            0 => crate::test_support::in_pool(1, refresh),
+            1 => crate::test_support::in_pool(2, refresh),
             _ => refresh(),
         };
         match result {
