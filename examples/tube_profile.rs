@@ -75,7 +75,7 @@ fn main() {
             t.iterations,
             t.substeps,
             t.passes,
-            t.collision_s * 1e3,
+            t.collision_s() * 1e3,
             t.converged,
             d.contacts,
             d.exact_queries,

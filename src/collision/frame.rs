@@ -47,15 +47,20 @@ pub struct FrameRelax {
     pub report: RelaxReport,
     /// Substeps run.
     pub substeps: u32,
-    /// Time spent in contact (frame plan, substep passes, projections inside the solves): the
-    /// sum of the three below.
-    pub contact_time: Duration,
     /// The frame plan ([`SkinCollision::begin_frame`]).
     pub plan_time: Duration,
     /// The substeps' contact passes ([`SkinCollision::substep`]).
     pub pass_time: Duration,
     /// The projections inside the relaxations.
     pub projection_time: Duration,
+}
+
+impl FrameRelax {
+    /// Time spent in contact: the frame plan, the substep passes and the projections inside
+    /// the solves.
+    pub fn contact_time(&self) -> Duration {
+        self.plan_time + self.pass_time + self.projection_time
+    }
 }
 
 /// Why a frame could not be relaxed.
@@ -542,7 +547,6 @@ pub fn relax_frame(
                 ..report
             },
             substeps,
-            contact_time: plan_time + pass_time + projection_time,
             plan_time,
             pass_time,
             projection_time,

@@ -1,7 +1,7 @@
 //! The second-order warm start in a scene: its deviation history is part of the checkpoint.
 
-use super::{arm, bits, resumed, run, thick_contact, world_with};
-use dermis::ecs::{capture_state, restore_state, scene_skin_positions};
+use super::{arm, checkpointed, resumed, thick_contact, world_with};
+use dermis::ecs::restore_state;
 
 /// The warm start extrapolates the skin's deviation from its anchors over the last two solves;
 /// a checkpoint taken mid-clip holds that history (one target and one deviation per vertex),
@@ -11,22 +11,17 @@ use dermis::ecs::{capture_state, restore_state, scene_skin_positions};
 fn the_motion_history_makes_checkpoints_exact() {
     let scene = arm();
     let options = thick_contact();
-    let (n, m) = (27, 3);
-    let (mut direct, mut schedule, spawned) = world_with(&scene, &options);
-    run(&mut direct, &mut schedule, n);
-    let state = capture_state(&mut direct).unwrap();
+    let (state, _, a) = checkpointed(&scene, &options, 27, 3);
     let skin = &state.skins[0];
     assert_eq!(skin.motion_targets.len(), skin.positions.len());
     assert_eq!(skin.motion_deviations.len(), skin.positions.len());
     assert!(skin.motion_deviations.iter().any(|u| u.length() > 0.0));
-    run(&mut direct, &mut schedule, m);
-    let a = bits(&scene_skin_positions(&direct, spawned.skins[0].entity).unwrap());
-    assert_eq!(a, resumed(&scene, &options, &state, m).1);
+    assert_eq!(a, resumed(&scene, &options, &state, 3).1);
 
     let mut forgetful = state.clone();
     forgetful.skins[0].motion_targets.clear();
     forgetful.skins[0].motion_deviations.clear();
-    assert_ne!(a, resumed(&scene, &options, &forgetful, m).1);
+    assert_ne!(a, resumed(&scene, &options, &forgetful, 3).1);
 
     // A history of another length is a typed error, not a panic.
     let mut short = state.clone();
