@@ -162,6 +162,11 @@ pub struct WorkloadReport {
     pub collider_triangles: usize,
     /// Frames timed.
     pub frames: usize,
+    /// Each timed frame's time, ms, in the clip's order (the median and p99 below are taken
+    /// over these).
+    pub frame_ms: Vec<f64>,
+    /// Each timed frame's relaxation iterations (summed over its substeps), in the same order.
+    pub frame_iterations: Vec<u32>,
     /// Timed frames whose (last) relaxation converged to the default tolerance; the others
     /// spent the 500-iteration budget or stalled.
     pub frames_converged: usize,
@@ -387,6 +392,7 @@ pub fn run_arm_workload(
     let mut run =
         ArmRun::new(work, first_frame, settle_iterations).expect("the bench's inputs are valid");
     let mut times = Vec::with_capacity(frames);
+    let mut frame_iterations = Vec::with_capacity(frames);
     let mut refresh = Vec::with_capacity(frames);
     let (mut iterations, mut substeps, mut passes) = (0u64, 0u64, 0u64);
     let (mut naive_s, mut sampled_collision_s) = (0.0, 0.0);
@@ -398,6 +404,7 @@ pub fn run_arm_workload(
     for f in 0..frames {
         let t = run.step(work).expect("the bench's inputs are valid");
         times.push(t.total_s * 1e3);
+        frame_iterations.push(t.iterations);
         refresh.push(t.refresh_s * 1e3);
         iterations += u64::from(t.iterations);
         substeps += u64::from(t.substeps);
@@ -433,6 +440,7 @@ pub fn run_arm_workload(
             .expect("the same vertex count");
         refresh.push(t.elapsed().as_secs_f64() * 1e3);
     }
+    let frame_ms = times.clone();
     let times = sorted(times);
     let per_frame = |v: u64| v as f64 / frames.max(1) as f64;
     let per_vertex = |s: f64| s * 1e6 / (frames.max(1) * n) as f64;
@@ -462,6 +470,8 @@ pub fn run_arm_workload(
         skin_vertices: n,
         collider_triangles: work.muscle_triangle_count(),
         frames,
+        frame_ms,
+        frame_iterations,
         frames_converged: converged,
         frame_ms_median: quantile(&times, 0.5),
         frame_ms_p99: quantile(&times, 0.99),
@@ -501,6 +511,7 @@ pub fn run_workload(
     let n = work.mesh.positions().len();
     let mut x = work.mesh.positions().to_vec();
     let mut times = Vec::with_capacity(frames);
+    let mut frame_iterations = Vec::with_capacity(frames);
     let mut iterations = 0u64;
     let mut converged = 0;
     let config = RelaxConfig::default();
@@ -517,9 +528,11 @@ pub fn run_workload(
             .relax(&mut x, &loads, &config)
             .expect("benchmark inputs are finite");
         times.push(t.elapsed().as_secs_f64() * 1e3);
+        frame_iterations.push(report.iterations);
         iterations += u64::from(report.iterations);
         converged += usize::from(report.converged());
     }
+    let frame_ms = times.clone();
     let times = sorted(times);
     let relax = relax_figures(work, &work.anchors(10), machine, runs);
     WorkloadReport {
@@ -527,6 +540,8 @@ pub fn run_workload(
         skin_vertices: n,
         collider_triangles: 0,
         frames,
+        frame_ms,
+        frame_iterations,
         frames_converged: converged,
         frame_ms_median: quantile(&times, 0.5),
         frame_ms_p99: quantile(&times, 0.99),
@@ -642,13 +657,15 @@ pub struct Plan {
 }
 
 impl Plan {
-    /// The full run (under two minutes on the 2-core reference machine).
+    /// The full run (under two minutes on the 2-core reference machine): `tube-10k` times the
+    /// whole clip once round (60 frames from frame 12, through full flexion and back),
+    /// `tube-100k` 4 frames of the flexion.
     pub const FULL: Self = Self {
         vertices: [10_000, 100_000, 1_000_000],
         first_frame: [12, 14],
         settle_iterations: [500, 100],
-        frames: [10, 1, 1],
-        naive_stride: [2, 1],
+        frames: [CLIP_FRAMES, 4, 1],
+        naive_stride: [6, 4],
         runs: [5, 2, 1],
         muscle: (126, 200),
     };
@@ -790,7 +807,7 @@ mod tests {
             vertices: [800, 1_200, 1_500],
             first_frame: [14, 14],
             settle_iterations: [100, 100],
-            frames: [2, 1, 1],
+            frames: [3, 1, 1],
             naive_stride: [1, 1],
             runs: [1, 1, 1],
             muscle: (20, 32),
@@ -860,6 +877,16 @@ mod tests {
                     w[key]
                 );
             }
+            // The per-frame lists: one entry per timed frame, and the summaries are theirs.
+            let frames = w["frames"].as_u64().unwrap() as usize;
+            let ms: Vec<f64> = serde_json::from_value(w["frame_ms"].clone()).unwrap();
+            let its: Vec<u32> = serde_json::from_value(w["frame_iterations"].clone()).unwrap();
+            assert_eq!((ms.len(), its.len()), (frames, frames), "{}", w["name"]);
+            let slowest = ms.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            assert_eq!(w["frame_ms_p99"].as_f64().unwrap(), slowest);
+            assert!(ms.contains(&w["frame_ms_median"].as_f64().unwrap()));
+            let mean = its.iter().map(|&i| f64::from(i)).sum::<f64>() / frames as f64;
+            assert_eq!(w["iterations_per_frame_mean"].as_f64().unwrap(), mean);
             if !arm {
                 assert!(contact.iter().all(|k| w[k].is_null()));
                 continue;

@@ -160,6 +160,8 @@ mod tests {
             skin_vertices: 10_000,
             collider_triangles: triangles,
             frames: 10,
+            frame_ms: vec![frame_ms; 10],
+            frame_iterations: vec![70; 10],
             frames_converged: 10,
             frame_ms_median: frame_ms,
             frame_ms_p99: 2.0 * frame_ms,
