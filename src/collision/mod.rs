@@ -747,10 +747,13 @@ impl SkinCollision {
     /// can come within its contact band of, m: what the substeps must split.
     ///
     /// In a rigid collider's rest frame, a vertex moving from its last pass `p₀` to its warm
-    /// start `p₁` (`v = |p₁ − p₀|`) while the pose goes from the previous frame's to the
-    /// current one (translation lerped by `Δt`, rotation slerped by `θ`) follows the path
-    /// `l(t) = P(t)⁻¹ p(t)` at a speed of at most `L = |Δt| + θ (|p₁ − t₁| + v + |Δt|) + v`. A
-    /// deforming mesh's surface moves at most `δ` (its largest vertex displacement) on top.
+    /// start `p₁` (`v = |p₁ − p₀|`) while the pose goes from the previous frame's `(R₀, t₀)`
+    /// to the current one `(R₁, t₁)` (translation lerped, rotation slerped: a constant angular
+    /// velocity `ω` in the world frame) follows the path `l(t) = R(t)ᵀ w(t)`, `w(t) = p(t) −
+    /// t(t)`, whose speed `|l′(t)| = |w′ − ω × w(t)|` is linear in `t` under the norm: it is
+    /// at most `L = max(|w′ − ω × w₀|, |w′ − ω × w₁|)`, exact for a vertex carried with the
+    /// collider or turned about a far pivot. A deforming mesh's surface moves at most `δ` (its
+    /// largest vertex displacement) on top.
     /// The signed distance is 1-Lipschitz, so over `[t_a, t_b]` it stays above
     /// `min(s(t_a), s(t_b)) − L (t_b − t_a) / 2 − δ`: the path is bisected (exact queries at
     /// the ends of each piece, up to 64 pieces) until every piece is proven to stay out of the
@@ -763,8 +766,8 @@ impl SkinCollision {
             /// `prev.lerp(pose, k / PATH_STEPS)` for every `k`: the bisection only evaluates
             /// the path at these times, the same for every vertex.
             path: [Pose; PATH_STEPS + 1],
-            shift: f32,
-            angle: f32,
+            /// The slerp's angular velocity over the frame (world frame), rad.
+            omega: Vec3,
             deform: f32,
             global: f32,
             travel: f64,
@@ -778,14 +781,23 @@ impl SkinCollision {
             .iter()
             .map(|c| {
                 let (prev, pose) = (c.prev_pose(), c.pose());
-                let delta = pose.rotation * prev.rotation.inverse();
+                // The slerp turns about the axis of `R₁ R₀⁻¹` by its angle along the shorter
+                // way (the quaternion with `w >= 0`).
+                let mut delta = (pose.rotation * prev.rotation.inverse()).normalize();
+                if delta.w < 0.0 {
+                    delta = -delta;
+                }
+                let (axis, angle) = delta.to_axis_angle();
                 let deform = c.frame_deform_m();
                 Motion {
                     prev,
                     pose,
                     path: std::array::from_fn(|k| prev.lerp(&pose, k as f32 / PATH_STEPS as f32)),
-                    shift: prev.translation.distance(pose.translation),
-                    angle: delta.normalize().to_axis_angle().1.abs(),
+                    omega: if angle > 0.0 {
+                        axis * angle
+                    } else {
+                        Vec3::ZERO
+                    },
                     deform,
                     global: deform + c.frame_pose_motion_m(),
                     travel: c.travel_m(),
@@ -804,13 +816,15 @@ impl SkinCollision {
                 if m.global + v <= worst {
                     continue;
                 }
-                // (No turn, no lever arm: the same sum without the distance.)
-                let turn = if m.angle == 0.0 {
-                    0.0
-                } else {
-                    m.angle * (p1.distance(m.pose.translation) + v + m.shift)
-                };
-                let speed = m.shift + turn + v;
+                // The path's speed bound (see above), with room for the rounding of the
+                // products and of the slerp.
+                let (w0, w1) = (p0 - m.prev.translation, p1 - m.pose.translation);
+                let dw = w1 - w0;
+                let speed = (dw - m.omega.cross(w0))
+                    .length()
+                    .max((dw - m.omega.cross(w1)).length())
+                    * (1.0 + 1e-4)
+                    + 1e-6;
                 let motion = (speed + m.deform).min(m.global + v);
                 if motion <= worst {
                     continue;
@@ -828,7 +842,12 @@ impl SkinCollision {
                 } else {
                     slot.lower_bound(p0, m.travel)
                 };
-                let bound = now.min(before - m.global as f64);
+                // At the previous pose `p₀` was as far from the surface as `P₁ P₀⁻¹ p₀` is
+                // now, less the deformation: the bound now, less how far that relative pose
+                // carries `p₀` (at most the collider's whole motion `m.global`).
+                let carried = m.pose.transform_point(m.prev.inverse_transform_point(p0));
+                let moved = (carried.distance(p0) * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global);
+                let bound = now.min(before - moved as f64);
                 let needed = (margin + 0.5 * speed) as f64;
                 if bound - 1e-4 * (p1.abs().max_element() as f64 + needed) - 1e-6 >= needed {
                     continue;

@@ -897,6 +897,66 @@ fn far_fast_colliders_cost_no_substep_near_ones_do() {
     assert!(both.substeps >= 30 && both.substeps < 300, "{both:?}");
 }
 
+/// A bone turning about a joint far from its frame's origin (a forearm about the elbow): the
+/// substeps split the skin's motion relative to the bone, not the bone's motion through its
+/// frame's origin. Skin carried with the bone needs none; still skin needs the motion of the
+/// bone's far end, `θ` times its distance from the joint, in steps of half a thickness.
+#[test]
+fn substeps_follow_the_motion_relative_to_a_turning_bone() {
+    let (h, r, theta) = (0.01, 0.03, 0.05f32);
+    // The bone runs 0.3 m along x from the joint at x = 1; the skin wraps it at the thickness.
+    let (joint, end) = (Vec3::new(1.0, 0.0, 0.0), Vec3::new(1.3, 0.0, 0.0));
+    let mesh = tube(12, 7, r + h, 1.0, 1.3);
+    let turned = |angle: f32| {
+        let q = Quat::from_rotation_z(angle);
+        Pose::from_parts(joint - q * joint, q)
+    };
+    let config = ContactConfig {
+        thickness_m: h,
+        ..ContactConfig::DEFAULT
+    };
+    let start = |x: &mut Vec<Vec3>| {
+        let mut contact = SkinCollision::new(x.len(), config).unwrap();
+        let bone = contact.add_collider(ColliderMesh::capsule(joint, end, r).unwrap());
+        contact.advance_frame(x).unwrap();
+        contact
+            .collider_mut(bone)
+            .unwrap()
+            .set_pose(turned(theta))
+            .unwrap();
+        contact
+    };
+    // Carried: the skin turns with the bone.
+    let mut x = mesh.positions().to_vec();
+    let mut contact = start(&mut x);
+    let pose = turned(theta);
+    x.iter_mut().for_each(|p| *p = pose.transform_point(*p));
+    assert_eq!(contact.begin_frame(&mut x).unwrap().substeps, 1);
+    // Still: the bone's far end sweeps `θ |p − joint|` under the skin (`|p − joint|` at most
+    // the far ring's distance from the joint).
+    let mut x = mesh.positions().to_vec();
+    let mut contact = start(&mut x);
+    let far = mesh
+        .positions()
+        .iter()
+        .map(|p| p.distance(joint))
+        .fold(0.0, f32::max);
+    let least = (theta * far / (0.5 * h)).ceil() as u32;
+    let plan = contact.begin_frame(&mut x).unwrap();
+    assert!(
+        (least..=least + 1).contains(&plan.substeps),
+        "{plan:?}, the relative motion needs {least}"
+    );
+    // And those substeps keep the skin outside the turned bone.
+    while contact.substep(&mut x).unwrap() > 0 {}
+    let (a, b) = (pose.transform_point(joint), pose.transform_point(end));
+    let worst = x
+        .iter()
+        .map(|p| capsule_distance(*p, a, b, r))
+        .fold(f32::INFINITY, f32::min);
+    assert!(worst > h - 1e-4, "{worst}");
+}
+
 #[test]
 fn contact_solve_is_bit_identical_for_any_thread_count() {
     let run = |threads: usize| {
