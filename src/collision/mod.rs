@@ -768,6 +768,8 @@ impl SkinCollision {
             path: [Pose; PATH_STEPS + 1],
             /// The slerp's angular velocity over the frame (world frame), rad.
             omega: Vec3,
+            /// The pose did not change over the frame.
+            still: bool,
             deform: f32,
             global: f32,
             travel: f64,
@@ -798,6 +800,7 @@ impl SkinCollision {
                     } else {
                         Vec3::ZERO
                     },
+                    still: prev == pose,
                     deform,
                     global: deform + c.frame_pose_motion_m(),
                     travel: c.travel_m(),
@@ -817,14 +820,22 @@ impl SkinCollision {
                     continue;
                 }
                 // The path's speed bound (see above), with room for the rounding of the
-                // products and of the slerp.
-                let (w0, w1) = (p0 - m.prev.translation, p1 - m.pose.translation);
-                let dw = w1 - w0;
-                let speed = (dw - m.omega.cross(w0))
-                    .length()
-                    .max((dw - m.omega.cross(w1)).length())
-                    * (1.0 + 1e-4)
-                    + 1e-6;
+                // products and of the slerp; exactly 0 for a still pair (a still bone under
+                // still skin), which then costs nothing below.
+                let raw = if m.still {
+                    v
+                } else {
+                    let (w0, w1) = (p0 - m.prev.translation, p1 - m.pose.translation);
+                    let dw = w1 - w0;
+                    (dw - m.omega.cross(w0))
+                        .length()
+                        .max((dw - m.omega.cross(w1)).length())
+                };
+                let speed = if raw > 0.0 {
+                    raw * (1.0 + 1e-4) + 1e-6
+                } else {
+                    0.0
+                };
                 let motion = (speed + m.deform).min(m.global + v);
                 if motion <= worst {
                     continue;
@@ -845,8 +856,12 @@ impl SkinCollision {
                 // At the previous pose `p₀` was as far from the surface as `P₁ P₀⁻¹ p₀` is
                 // now, less the deformation: the bound now, less how far that relative pose
                 // carries `p₀` (at most the collider's whole motion `m.global`).
-                let carried = m.pose.transform_point(m.prev.inverse_transform_point(p0));
-                let moved = (carried.distance(p0) * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global);
+                let moved = if m.still {
+                    m.deform
+                } else {
+                    let carried = m.pose.transform_point(m.prev.inverse_transform_point(p0));
+                    (carried.distance(p0) * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global)
+                };
                 let bound = now.min(before - moved as f64);
                 let needed = (margin + 0.5 * speed) as f64;
                 if bound - 1e-4 * (p1.abs().max_element() as f64 + needed) - 1e-6 >= needed {
