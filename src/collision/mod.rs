@@ -784,22 +784,25 @@ impl SkinCollision {
             .map(|c| {
                 let (prev, pose) = (c.prev_pose(), c.pose());
                 // The slerp turns about the axis of `R₁ R₀⁻¹` by its angle along the shorter
-                // way (the quaternion with `w >= 0`).
+                // way (the quaternion with `w >= 0`). The angle from `atan2(|xyz|, w)`, not
+                // from `acos(w)`, which loses small turns to the rounding of `w` near 1.
                 let mut delta = (pose.rotation * prev.rotation.inverse()).normalize();
                 if delta.w < 0.0 {
                     delta = -delta;
                 }
-                let (axis, angle) = delta.to_axis_angle();
+                let xyz = delta.xyz();
+                let sin_half = xyz.length();
+                let omega = if sin_half > 0.0 {
+                    xyz * (2.0 * sin_half.atan2(delta.w) / sin_half)
+                } else {
+                    Vec3::ZERO
+                };
                 let deform = c.frame_deform_m();
                 Motion {
                     prev,
                     pose,
                     path: std::array::from_fn(|k| prev.lerp(&pose, k as f32 / PATH_STEPS as f32)),
-                    omega: if angle > 0.0 {
-                        axis * angle
-                    } else {
-                        Vec3::ZERO
-                    },
+                    omega,
                     still: prev == pose,
                     deform,
                     global: deform + c.frame_pose_motion_m(),
