@@ -770,6 +770,12 @@ impl SkinCollision {
             omega: Vec3,
             /// The pose did not change over the frame.
             still: bool,
+            /// For a vertex still over the frame (`p₀ = p₁ = p`, the usual case): the path's
+            /// speed at its ends is `|cₖ − ω × p|`, `cₖ = t₀ − t₁ + ω × tₖ`...
+            ends: [Vec3; 2],
+            /// ... and the relative pose carries it by `|(M − I) p + b|` (`M = R₁ R₀ᵀ`,
+            /// `b = t₁ − M t₀`).
+            carry: (glam::Mat3, Vec3),
             deform: f32,
             global: f32,
             travel: f64,
@@ -804,6 +810,15 @@ impl SkinCollision {
                     path: std::array::from_fn(|k| prev.lerp(&pose, k as f32 / PATH_STEPS as f32)),
                     omega,
                     still: prev == pose,
+                    ends: [prev.translation, pose.translation]
+                        .map(|t| prev.translation - pose.translation + omega.cross(t)),
+                    carry: {
+                        let m = glam::Mat3::from_quat(pose.rotation * prev.rotation.inverse());
+                        (
+                            m - glam::Mat3::IDENTITY,
+                            pose.translation - m * prev.translation,
+                        )
+                    },
                     deform,
                     global: deform + c.frame_pose_motion_m(),
                     travel: c.travel_m(),
@@ -827,6 +842,9 @@ impl SkinCollision {
                 // still skin), which then costs nothing below.
                 let raw = if m.still {
                     v
+                } else if p0 == p1 {
+                    let turn = m.omega.cross(p1);
+                    (m.ends[0] - turn).length().max((m.ends[1] - turn).length())
                 } else {
                     let (w0, w1) = (p0 - m.prev.translation, p1 - m.pose.translation);
                     let dw = w1 - w0;
@@ -861,6 +879,9 @@ impl SkinCollision {
                 // carries `p₀` (at most the collider's whole motion `m.global`).
                 let moved = if m.still {
                     m.deform
+                } else if p0 == p1 {
+                    let carried = (m.carry.0 * p0 + m.carry.1).length();
+                    (carried * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global)
                 } else {
                     let carried = m.pose.transform_point(m.prev.inverse_transform_point(p0));
                     (carried.distance(p0) * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global)
