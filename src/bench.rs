@@ -394,7 +394,7 @@ pub fn run_arm_workload(
     let mut times = Vec::with_capacity(frames);
     let mut frame_iterations = Vec::with_capacity(frames);
     let mut refresh = Vec::with_capacity(frames);
-    let (mut iterations, mut substeps, mut passes) = (0u64, 0u64, 0u64);
+    let (mut substeps, mut passes) = (0u64, 0u64);
     let (mut naive_s, mut sampled_collision_s) = (0.0, 0.0);
     let (mut plan_s, mut passes_s, mut projections_s) = (0.0, 0.0, 0.0);
     let mut sampled = 0usize;
@@ -406,7 +406,6 @@ pub fn run_arm_workload(
         times.push(t.total_s * 1e3);
         frame_iterations.push(t.iterations);
         refresh.push(t.refresh_s * 1e3);
-        iterations += u64::from(t.iterations);
         substeps += u64::from(t.substeps);
         passes += t.passes;
         (plan_s, passes_s, projections_s) = (
@@ -440,6 +439,7 @@ pub fn run_arm_workload(
             .expect("the same vertex count");
         refresh.push(t.elapsed().as_secs_f64() * 1e3);
     }
+    let iterations: u64 = frame_iterations.iter().map(|&i| u64::from(i)).sum();
     let frame_ms = times.clone();
     let times = sorted(times);
     let per_frame = |v: u64| v as f64 / frames.max(1) as f64;
@@ -512,7 +512,6 @@ pub fn run_workload(
     let mut x = work.mesh.positions().to_vec();
     let mut times = Vec::with_capacity(frames);
     let mut frame_iterations = Vec::with_capacity(frames);
-    let mut iterations = 0u64;
     let mut converged = 0;
     let config = RelaxConfig::default();
     for frame in 0..frames {
@@ -529,9 +528,9 @@ pub fn run_workload(
             .expect("benchmark inputs are finite");
         times.push(t.elapsed().as_secs_f64() * 1e3);
         frame_iterations.push(report.iterations);
-        iterations += u64::from(report.iterations);
         converged += usize::from(report.converged());
     }
+    let iterations: u64 = frame_iterations.iter().map(|&i| u64::from(i)).sum();
     let frame_ms = times.clone();
     let times = sorted(times);
     let relax = relax_figures(work, &work.anchors(10), machine, runs);

@@ -770,10 +770,10 @@ impl SkinCollision {
             omega: Vec3,
             /// The pose did not change over the frame.
             still: bool,
-            /// For a vertex still over the frame (`p₀ = p₁ = p`, the usual case): the path's
-            /// speed at its ends is `|cₖ − ω × p|`, `cₖ = t₀ − t₁ + ω × tₖ`...
+            /// The path's speed at its ends, `|w′ − ω × wₖ|`, is `|(p₁ − p₀) + cₖ − ω × pₖ|`
+            /// with `cₖ = t₀ − t₁ + ω × tₖ`...
             ends: [Vec3; 2],
-            /// ... and the relative pose carries it by `|(M − I) p + b|` (`M = R₁ R₀ᵀ`,
+            /// ... and the relative pose carries `p₀` by `|(M − I) p₀ + b|` (`M = R₁ R₀ᵀ`,
             /// `b = t₁ − M t₀`).
             carry: (glam::Mat3, Vec3),
             deform: f32,
@@ -842,15 +842,14 @@ impl SkinCollision {
                 // still skin), which then costs nothing below.
                 let raw = if m.still {
                     v
-                } else if p0 == p1 {
-                    let turn = m.omega.cross(p1);
-                    (m.ends[0] - turn).length().max((m.ends[1] - turn).length())
                 } else {
-                    let (w0, w1) = (p0 - m.prev.translation, p1 - m.pose.translation);
-                    let dw = w1 - w0;
-                    (dw - m.omega.cross(w0))
+                    // (A vertex still over the frame, the usual case, turns once.)
+                    let turn0 = m.omega.cross(p0);
+                    let turn1 = if p0 == p1 { turn0 } else { m.omega.cross(p1) };
+                    let step = p1 - p0;
+                    (step + m.ends[0] - turn0)
                         .length()
-                        .max((dw - m.omega.cross(w1)).length())
+                        .max((step + m.ends[1] - turn1).length())
                 };
                 let speed = if raw > 0.0 {
                     raw * (1.0 + 1e-4) + 1e-6
@@ -879,12 +878,9 @@ impl SkinCollision {
                 // carries `p₀` (at most the collider's whole motion `m.global`).
                 let moved = if m.still {
                     m.deform
-                } else if p0 == p1 {
+                } else {
                     let carried = (m.carry.0 * p0 + m.carry.1).length();
                     (carried * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global)
-                } else {
-                    let carried = m.pose.transform_point(m.prev.inverse_transform_point(p0));
-                    (carried.distance(p0) * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global)
                 };
                 let bound = now.min(before - moved as f64);
                 let needed = (margin + 0.5 * speed) as f64;
