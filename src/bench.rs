@@ -206,9 +206,21 @@ pub struct WorkloadReport {
     /// above 1, the whole frame's contact costs less than one plain query per vertex (`null`
     /// without collision).
     pub collision_speedup_vs_naive: Option<f64>,
-    /// Median time of the muscle's refit ([`crate::collision::ColliderMesh::set_vertices`]),
-    /// ms, over the timed frames and 8 more refits after them (`null` without collision).
+    /// Median over the timed frames of the muscle's refit, ms: its
+    /// [`set_vertices`](crate::collision::ColliderMesh::set_vertices) plus the refits of the
+    /// parts the frame's queries reached, summed over threads (see
+    /// [`refit_stats`](crate::collision::ColliderMesh::refit_stats); those refits run inside
+    /// the contact work and are in its times too) (`null` without collision).
     pub collider_refresh_ms: Option<f64>,
+    /// Mean time per frame of the refits of the muscle's parts that the frame's queries
+    /// reached, ms, summed over threads: part of `collider_refresh_ms`, and spent inside the
+    /// contact work, so also part of `collision_us_per_vertex` (`null` without collision).
+    pub collider_deferred_refit_ms: Option<f64>,
+    /// Mean number of the muscle's BVH parts refitted per frame, of
+    /// `collider_parts` (`null` without collision).
+    pub collider_parts_refitted_per_frame: Option<f64>,
+    /// Parts the muscle's BVH is held in (`null` without collision).
+    pub collider_parts: Option<usize>,
     /// Smallest clearance of the skin from the analytic colliders after any timed frame, m
     /// (the skin thickness when contact holds; `null` without collision).
     pub min_clearance_m: Option<f64>,
@@ -394,6 +406,7 @@ pub fn run_arm_workload(
     let mut times = Vec::with_capacity(frames);
     let mut frame_iterations = Vec::with_capacity(frames);
     let mut refresh = Vec::with_capacity(frames);
+    let (mut parts_refitted, mut deferred_s) = (0u64, 0.0f64);
     let (mut substeps, mut passes) = (0u64, 0u64);
     let (mut naive_s, mut sampled_collision_s) = (0.0, 0.0);
     let (mut plan_s, mut passes_s, mut projections_s) = (0.0, 0.0, 0.0);
@@ -405,7 +418,9 @@ pub fn run_arm_workload(
         let t = run.step(work).expect("the bench's inputs are valid");
         times.push(t.total_s * 1e3);
         frame_iterations.push(t.iterations);
-        refresh.push(t.refresh_s * 1e3);
+        refresh.push((t.refresh_s + t.deferred_refit_s) * 1e3);
+        parts_refitted += t.parts_refitted;
+        deferred_s += t.deferred_refit_s;
         substeps += u64::from(t.substeps);
         passes += t.passes;
         (plan_s, passes_s, projections_s) = (
@@ -421,23 +436,6 @@ pub fn run_arm_workload(
             sampled_collision_s += t.collision_s();
             sampled += 1;
         }
-    }
-    // The refit on its own, a few more times than there are frames (one frame's figure is
-    // noise on this machine): alternate between two shapes of the clip.
-    let shapes = [
-        work.muscle_vertices(run.frame + 1),
-        work.muscle_vertices(run.frame),
-    ];
-    for k in 0..8 {
-        let muscle = run
-            .contact
-            .collider_mut(run.ids.muscle)
-            .expect("the muscle was added");
-        let t = Instant::now();
-        muscle
-            .set_vertices(&shapes[k % 2])
-            .expect("the same vertex count");
-        refresh.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let iterations: u64 = frame_iterations.iter().map(|&i| u64::from(i)).sum();
     let frame_ms = times.clone();
@@ -487,6 +485,9 @@ pub fn run_arm_workload(
         collision_naive_us_per_vertex_pass: Some(naive_s * 1e6 / (sampled.max(1) * n) as f64),
         collision_speedup_vs_naive: Some(naive_s / sampled_collision_s),
         collider_refresh_ms: Some(quantile(&sorted(refresh), 0.5)),
+        collider_deferred_refit_ms: Some(deferred_s * 1e3 / frames.max(1) as f64),
+        collider_parts_refitted_per_frame: Some(per_frame(parts_refitted)),
+        collider_parts: Some(run.contact.colliders()[run.ids.muscle.0 as usize].part_count()),
         min_clearance_m: Some(f64::from(min_clearance)),
         unresolved_max: Some(unresolved_max),
         bytes_per_vertex: relax.bytes_per_vertex,
@@ -556,6 +557,9 @@ pub fn run_workload(
         collision_naive_us_per_vertex_pass: None,
         collision_speedup_vs_naive: None,
         collider_refresh_ms: None,
+        collider_deferred_refit_ms: None,
+        collider_parts_refitted_per_frame: None,
+        collider_parts: None,
         min_clearance_m: None,
         unresolved_max: None,
         bytes_per_vertex: relax.bytes_per_vertex,
@@ -855,6 +859,9 @@ mod tests {
             "collision_naive_us_per_vertex_pass",
             "collision_speedup_vs_naive",
             "collider_refresh_ms",
+            "collider_deferred_refit_ms",
+            "collider_parts_refitted_per_frame",
+            "collider_parts",
             "min_clearance_m",
             "unresolved_max",
             "shuffled_over_ordered",
@@ -891,6 +898,13 @@ mod tests {
                 continue;
             }
             assert_eq!(w["collider_triangles"], 2 * 32 * 19);
+            // The muscle is in parts, and the frames' queries refitted some of them.
+            let parts = w["collider_parts"].as_u64().unwrap();
+            let refitted = w["collider_parts_refitted_per_frame"].as_f64().unwrap();
+            assert!(
+                parts >= 1 && refitted > 0.0,
+                "{parts} parts, {refitted} refitted"
+            );
             // The contact time's three parts make up the whole.
             let part = |k: &str| w[k].as_f64().unwrap();
             let parts = part("collision_plan_us_per_vertex")

@@ -28,8 +28,8 @@ use super::TubeWorkload;
 use crate::collision::shapes::ellipsoid;
 use crate::collision::{
     ColliderId, ColliderMesh, CollisionError, ContactConfig, FrameError, FrameSchedule,
-    MotionHistory, MotionPrediction, SkinCollision, predict_from_anchors, predict_from_motion,
-    relax_frame,
+    MotionHistory, MotionPrediction, RefitStats, SkinCollision, predict_from_anchors,
+    predict_from_motion, relax_frame,
 };
 use crate::solver::{Loads, RelaxConfig, RelaxReport, SolverError, VertexAnchor};
 
@@ -267,6 +267,13 @@ pub struct FrameTimes {
     pub total_s: f64,
     /// [`ColliderMesh::set_vertices`] of the muscle, s.
     pub refresh_s: f64,
+    /// The muscle's parts refitted during the frame, when a query first reached them (see
+    /// [`ColliderMesh::refit_stats`]): their refit time, s, summed over threads. It is spent
+    /// inside the frame plan, the substep passes and the projections, and counted in their
+    /// times too.
+    pub deferred_refit_s: f64,
+    /// The muscle's parts refitted during the frame.
+    pub parts_refitted: u64,
     /// The contact frame plan, s.
     pub plan_s: f64,
     /// The substeps' contact passes, s.
@@ -408,6 +415,7 @@ impl ArmRun {
             }
         }
 
+        let refits = self.muscle_refits();
         let refresh = Instant::now();
         self.contact
             .collider_mut(self.ids.muscle)?
@@ -429,11 +437,14 @@ impl ArmRun {
         );
         self.last = Some(frame_relax.report);
         let total_s = start.elapsed().as_secs_f64();
+        let refitted = self.muscle_refits();
         self.frame = frame;
         let d = self.contact.diagnostics();
         Ok(FrameTimes {
             total_s,
             refresh_s,
+            deferred_refit_s: refitted.seconds - refits.seconds,
+            parts_refitted: refitted.parts_refitted - refits.parts_refitted,
             plan_s: frame_relax.plan_time.as_secs_f64(),
             passes_s: frame_relax.pass_time.as_secs_f64(),
             projections_s: frame_relax.projection_time.as_secs_f64(),
@@ -443,6 +454,11 @@ impl ArmRun {
             unresolved: d.unresolved.len(),
             converged,
         })
+    }
+
+    /// The muscle collider's refits so far.
+    fn muscle_refits(&self) -> RefitStats {
+        self.contact.colliders()[self.ids.muscle.0 as usize].refit_stats()
     }
 
     /// One naive contact query pass over the current skin: a parry `project_point` per vertex

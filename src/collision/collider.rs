@@ -8,7 +8,8 @@ use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{
     Ball, Capsule, CompositeShapeRef, TriMesh as ParryMesh, Triangle, TrianglePointLocation,
 };
-use std::sync::{OnceLock, PoisonError, RwLock};
+use rayon::prelude::*;
+use std::sync::OnceLock;
 
 use super::CollisionError;
 use super::cache::{PATCH, Patch};
@@ -33,6 +34,16 @@ struct Check {
     finite: bool,
     moved_sq: f32,
     deform_sq: f32,
+}
+
+/// Refits of a mesh collider's BVH parts since it was built ([`ColliderMesh::refit_stats`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct RefitStats {
+    /// Parts refitted (a mesh in one part: once per move; a split mesh: once per part a
+    /// query reached after a move).
+    pub parts_refitted: u64,
+    /// Time the refits took, s, summed over the threads that ran them.
+    pub seconds: f64,
 }
 
 /// The closest point of a collider's surface to a query point, in the collider's local frame.
@@ -62,9 +73,9 @@ enum Shape {
 
 #[derive(Debug, Clone)]
 struct MeshShape {
-    /// The triangles as subtrees of one parry BVH, refitted in parallel and searched as the
-    /// whole mesh's BVH (see [`parts`]). Parry meshes built without `ORIENTED`: refits cost
-    /// only the BVH.
+    /// The triangles as subtrees of one parry BVH, searched as the whole mesh's BVH and each
+    /// refitted when a search first reaches it after a move (see [`parts`]). Parry meshes
+    /// built without `ORIENTED`: refits cost only the BVH.
     parts: Parts,
     /// Triangles (mesh vertex ids), as built.
     indices: Vec<[u32; 3]>,
@@ -308,9 +319,12 @@ impl ColliderMesh {
     }
 
     /// Deforms a mesh collider (rest-frame positions, same count and order as built): a BVH
-    /// refit, no pseudo-normal recomputation. A mesh of more than 16384 triangles holds its
-    /// BVH in subtrees refitted in parallel (rayon), which answer every query exactly as one
-    /// BVH over the whole mesh.
+    /// refit, no pseudo-normal recomputation. A mesh of more than 1,024 triangles holds its
+    /// BVH in subtrees of at most that many, which answer every query exactly as one BVH over
+    /// the whole mesh: this call checks the input and recomputes the boxes above the subtrees,
+    /// and each subtree is refitted when a query first reaches it (see
+    /// [`refit_stats`](Self::refit_stats)). A non-finite or wrongly sized input is an error
+    /// and leaves the collider as it was.
     pub fn set_vertices(&mut self, vertices: &[Vec3]) -> Result<(), CollisionError> {
         let Shape::Mesh(m) = &mut self.shape else {
             return Err(CollisionError::NotAMesh);
@@ -322,46 +336,31 @@ impl ColliderMesh {
                 expected: m.current.len(),
             });
         }
-        // The parts' refits run next to the checks of the input, in chunks that also measure
-        // the motion and the frame's deformation, and, once every chunk is checked, the
-        // copies. A refit to a non-finite input is undone below: the parts' boxes depend only
-        // on the vertices they are fitted to.
-        let chunks = vertices.len().div_ceil(CHECK_CHUNK);
-        let checked: Vec<OnceLock<Check>> = (0..chunks).map(|_| OnceLock::new()).collect();
-        let (live, current, prev) = (RwLock::new(&mut m.live), &mut m.current, &m.prev);
-        let check = |c: usize| {
-            let range = c * CHECK_CHUNK..((c + 1) * CHECK_CHUNK).min(vertices.len());
-            let live = live.read().unwrap_or_else(PoisonError::into_inner);
-            let v = &vertices[range.clone()];
-            let _ = checked[c].set(Check {
+        // The checks, in parallel chunks: the input finite, and its largest displacements from
+        // the fitted vertices and from the previous frame's. Nothing changes before they pass.
+        let checked: Vec<Check> = vertices
+            .par_chunks(CHECK_CHUNK)
+            .zip(m.live.par_chunks(CHECK_CHUNK))
+            .zip(m.prev.par_chunks(CHECK_CHUNK))
+            .map(|((v, live), prev)| Check {
                 finite: v.iter().all(|v| v.is_finite()),
-                moved_sq: max_distance_sq(&live[range.clone()], v),
-                deform_sq: max_distance_sq(&prev[range], v),
-            });
-        };
-        let all_finite = || checked.iter().all(|c| c.get().is_some_and(|c| c.finite));
-        m.parts.refit_with(&|g| vertices[g], chunks, check, || {
-            if all_finite() {
-                let mut live = live.write().unwrap_or_else(PoisonError::into_inner);
-                live.copy_from_slice(vertices);
-                current.copy_from_slice(vertices);
-            }
-        });
-        if !all_finite() {
-            let live = &m.live;
-            m.parts.refit_with(&|g| live[g], 0, |_| {}, || {});
+                moved_sq: max_distance_sq(live, v),
+                deform_sq: max_distance_sq(prev, v),
+            })
+            .collect();
+        if !checked.iter().all(|c| c.finite) {
             return Err(CollisionError::NonFinite {
                 what: "collider vertex",
                 index: vertices.iter().position(|v| !v.is_finite()).unwrap_or(0),
             });
         }
+        m.live.copy_from_slice(vertices);
+        m.current.copy_from_slice(vertices);
+        m.parts.move_to(&m.live);
         // Maxima: the same whatever the order.
-        let (moved_sq, deform_sq) = checked
-            .iter()
-            .filter_map(OnceLock::get)
-            .fold((0.0f32, 0.0f32), |(m, d), c| {
-                (m.max(c.moved_sq), d.max(c.deform_sq))
-            });
+        let (moved_sq, deform_sq) = checked.iter().fold((0.0f32, 0.0f32), |(m, d), c| {
+            (m.max(c.moved_sq), d.max(c.deform_sq))
+        });
         let moved = moved_sq.sqrt();
         m.deform_m = deform_sq.sqrt();
         m.whole = OnceLock::new();
@@ -394,6 +393,49 @@ impl ColliderMesh {
                 whole
             })),
             _ => None,
+        }
+    }
+
+    /// How much of a mesh collider's BVH has been refitted since it was built (zero for
+    /// primitives, which are never refitted).
+    ///
+    /// A mesh of more than 1,024 triangles holds its BVH in parts (subtrees of at most that
+    /// many triangles): [`set_vertices`](Self::set_vertices)
+    /// recomputes only the boxes above them, and each part is refitted when a query first
+    /// reaches it, so a skin that touches a small region of a large deforming mesh refits only
+    /// that region. These counts show how much that was.
+    ///
+    /// ```
+    /// use dermis::collision::ColliderMesh;
+    /// use glam::Vec3;
+    /// let v = vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z];
+    /// let t = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+    /// let mut tet = ColliderMesh::from_mesh(v.clone(), t).unwrap();
+    /// let moved: Vec<Vec3> = v.iter().map(|p| *p * 1.1).collect();
+    /// tet.set_vertices(&moved).unwrap();
+    /// // A small mesh is one part, refitted by `set_vertices` itself.
+    /// assert_eq!(tet.refit_stats().parts_refitted, 1);
+    /// assert_eq!(tet.part_count(), 1);
+    /// ```
+    pub fn refit_stats(&self) -> RefitStats {
+        match &self.shape {
+            Shape::Mesh(m) => {
+                let (parts_refitted, nanos) = m.parts.refits();
+                RefitStats {
+                    parts_refitted,
+                    seconds: nanos as f64 * 1e-9,
+                }
+            }
+            _ => RefitStats::default(),
+        }
+    }
+
+    /// The number of parts a mesh collider's BVH is held in (see
+    /// [`refit_stats`](Self::refit_stats)); 0 for primitives.
+    pub fn part_count(&self) -> usize {
+        match &self.shape {
+            Shape::Mesh(m) => m.parts.count(),
+            _ => 0,
         }
     }
 
@@ -457,17 +499,8 @@ impl ColliderMesh {
                     prev[g].lerp(current[g], s)
                 }
             };
-            // The parts interpolate their own vertices; one more job moves `live`.
-            let live = &mut m.live;
-            let mut moved_sq = 0.0f32;
-            m.parts.refit_with(
-                &at,
-                0,
-                |_| {},
-                || {
-                    moved_sq = move_to(live, (0..prev.len()).map(at));
-                },
-            );
+            let moved_sq = move_to(&mut m.live, (0..prev.len()).map(at));
+            m.parts.move_to(&m.live);
             m.whole = OnceLock::new();
             self.travel_m += moved_sq.sqrt() as f64;
             self.local_aabb = m.parts.local_aabb();
@@ -618,12 +651,13 @@ impl MeshShape {
         p: Vec3,
         max_dist: f32,
     ) -> Option<(u32, parry3d::query::PointProjection, TrianglePointLocation)> {
+        let refits = self.parts.refit_counter();
         self.parts
             .find_best(
                 max_dist,
                 |aabb, _| aabb.distance_to_local_point(p, true),
                 |part, bound| {
-                    CompositeShapeRef(&part.mesh)
+                    CompositeShapeRef(part.mesh(&self.live, refits))
                         .project_local_point_and_get_location(p, bound, false)
                         .map(|(t, proj, location)| {
                             ((proj.point - p).length(), (part.global(t), proj, location))
@@ -636,12 +670,13 @@ impl MeshShape {
     /// The closest triangle to `p` by parry's search of the whole mesh
     /// (`CompositeShapeRef::project_local_point`, non-solid).
     fn search_point(&self, p: Vec3) -> Option<u32> {
+        let refits = self.parts.refit_counter();
         self.parts
             .find_best(
                 f32::MAX,
                 |aabb, _| aabb.distance_to_local_point(p, true),
                 |part, bound| {
-                    CompositeShapeRef(&part.mesh)
+                    CompositeShapeRef(part.mesh(&self.live, refits))
                         .project_local_point(p, bound, false)
                         .map(|(t, proj)| ((proj.point - p).length(), part.global(t)))
                 },
@@ -652,12 +687,13 @@ impl MeshShape {
     /// The first hit of `ray` within `max_toi` on the (hollow) mesh, as parry's
     /// `TriMesh::cast_local_ray_and_get_normal` finds it.
     fn cast_ray(&self, ray: &Ray, max_toi: f32) -> Option<parry3d::query::RayIntersection> {
+        let refits = self.parts.refit_counter();
         self.parts
             .find_best(
                 max_toi,
                 |aabb, best| aabb.cast_local_ray(ray, best, true).unwrap_or(f32::MAX),
                 |part, best| {
-                    CompositeShapeRef(&part.mesh)
+                    CompositeShapeRef(part.mesh(&self.live, refits))
                         .cast_local_ray_and_get_normal(ray, best, false)
                         .map(|(t, hit)| (hit.time_of_impact, hit.with_subshape(part.global(t))))
                 },
@@ -831,8 +867,9 @@ impl MeshShape {
             }
         };
         // parry's best-first search over the whole mesh, part by part (see `parts`).
+        let refits = self.parts.refit_counter();
         let _ = self.parts.find_best(bound, node_cost, |part, best| {
-            part.mesh
+            part.mesh(&self.live, refits)
                 .bvh()
                 .find_best(
                     best,

@@ -8,7 +8,7 @@ mod frame;
 mod project;
 pub mod shapes;
 
-pub use collider::{ColliderMesh, SurfaceProjection};
+pub use collider::{ColliderMesh, RefitStats, SurfaceProjection};
 pub use frame::{
     FrameError, FrameRelax, FrameSchedule, MotionHistory, MotionPrediction, SUBSTEP_ITERATIONS,
     predict_from_anchors, predict_from_motion, relax_frame,

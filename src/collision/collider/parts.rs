@@ -1,31 +1,73 @@
-//! A deforming mesh's BVH cut into subtrees, refitted in parallel and searched as one tree.
+//! A deforming mesh's BVH cut into subtrees, searched as one tree, each subtree refitted only
+//! when a search first enters it after the mesh moved.
 
 use glam::Vec3;
 use parry3d::bounding_volume::{Aabb, BoundingVolume};
 use parry3d::partitioning::{Bvh, BvhNode, BvhNodeIndex, TraversalAction};
 use parry3d::shape::TriMesh as ParryMesh;
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Mutex, PoisonError};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, OnceLock, PoisonError};
+use std::time::Instant;
 
 /// Largest part: a subtree with more triangles is split (where both of its children have more
-/// than one triangle). A mesh up to this size refits serially in one part; the bench's
-/// 50k-triangle muscle refits in four (10.8k-14.2k triangles), which balance over two
-/// threads: 0.38 ms instead of 0.59 ms with a second core free (half the size of parts, 8192,
-/// costs more than it balances; twice, two parts, is as fast).
-pub(crate) const PART_TRIANGLES: usize = 16_384;
+/// than one triangle). A mesh up to this size is one part, refitted whole when it moves; the
+/// parts of a larger one are refitted only when a search enters them, so the smaller the parts
+/// the less of a mesh far from the skin is refitted, and the more top levels a search visits.
+/// The bench's 50k-triangle muscle is in 80 parts (the choice measured in `benches/README.md`,
+/// session 11: 512 / 1024 / 2048 / 4096).
+pub(crate) const PART_TRIANGLES: usize = 1024;
 
 /// Triangles of one subtree, as a parry mesh over their own vertices.
-#[derive(Debug, Clone)]
+///
+/// A part of a split mesh holds its mesh in one of two states: fitted to the mesh's live
+/// vertices (`fitted`), or awaiting its refit (`stale`) since the vertices last moved. The
+/// first search to enter it refits it (parry's refit: the BVH depends only on the vertices it
+/// is fitted to, so a part refitted late, by any thread, is the part refitted at once). Its box
+/// is kept current at every move: the top levels prune with it.
+#[derive(Debug)]
 pub(super) struct Part {
-    /// The part's triangles over part-local vertices, without `ORIENTED`.
-    pub(super) mesh: ParryMesh,
+    /// The part's triangles over part-local vertices, without `ORIENTED`, fitted to the live
+    /// vertices (unset while the refit waits).
+    fitted: OnceLock<ParryMesh>,
+    /// The same mesh while its refit waits (`None` while `fitted` is set).
+    stale: Mutex<Option<ParryMesh>>,
+    /// The box of the part's vertices at the live vertices: parry's root box of the refitted
+    /// BVH, bit for bit (min and max are exact).
+    aabb: Aabb,
     /// Part-local vertex → mesh vertex (empty: the identity, a part holding the whole mesh).
     vertices: Vec<u32>,
     /// Part-local triangle → mesh triangle (empty: the identity).
     triangles: Vec<u32>,
 }
 
+impl Clone for Part {
+    fn clone(&self) -> Self {
+        let stale = self
+            .stale
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone();
+        Self {
+            fitted: self.fitted.clone(),
+            stale: Mutex::new(stale),
+            aabb: self.aabb,
+            vertices: self.vertices.clone(),
+            triangles: self.triangles.clone(),
+        }
+    }
+}
+
 impl Part {
+    fn new(mesh: ParryMesh, vertices: Vec<u32>, triangles: Vec<u32>) -> Self {
+        Self {
+            aabb: mesh.local_aabb(),
+            fitted: OnceLock::from(mesh),
+            stale: Mutex::new(None),
+            vertices,
+            triangles,
+        }
+    }
+
     /// The mesh triangle of part-local triangle `t`.
     #[inline]
     pub(super) fn global(&self, t: u32) -> u32 {
@@ -36,21 +78,112 @@ impl Part {
         }
     }
 
-    /// Moves the part's vertices to `source(g)` (mesh vertex `g`) and refits its BVH (parry's
-    /// refit).
-    fn refit(&mut self, source: &impl Fn(usize) -> Vec3) {
+    /// The part's parry mesh fitted to `live` (the mesh's live vertices, which the part was
+    /// last moved to): refitted here, once, if it waits for its refit. Concurrent callers wait
+    /// for the one refitting it.
+    #[inline]
+    pub(super) fn mesh(&self, live: &[Vec3], refits: &Refits) -> &ParryMesh {
+        self.fitted.get_or_init(|| {
+            let start = Instant::now();
+            let mut mesh = self
+                .stale
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .take()
+                .expect("a part's mesh is either fitted or waiting for its refit");
+            self.refit(&mut mesh, live);
+            refits.add(start);
+            mesh
+        })
+    }
+
+    /// Moves `mesh`'s vertices to `live` and refits its BVH (parry's refit).
+    fn refit(&self, mesh: &mut ParryMesh, live: &[Vec3]) {
         let map = &self.vertices;
-        self.mesh.update_vertices(|v| {
+        mesh.update_vertices(|v| {
             if map.is_empty() {
-                for (g, d) in v.iter_mut().enumerate() {
-                    *d = source(g);
-                }
+                v.copy_from_slice(live);
             } else {
                 for (d, &g) in v.iter_mut().zip(map) {
-                    *d = source(g as usize);
+                    *d = live[g as usize];
                 }
             }
         });
+    }
+
+    /// The part moved to `live`: its refit waits for the next search that enters it; its box
+    /// is recomputed now.
+    fn defer(&mut self, live: &[Vec3]) {
+        if let Some(mesh) = self.fitted.take() {
+            *self.stale.get_mut().unwrap_or_else(PoisonError::into_inner) = Some(mesh);
+        }
+        let mut lo = Vec3::INFINITY;
+        let mut hi = Vec3::NEG_INFINITY;
+        for &g in &self.vertices {
+            let v = live[g as usize];
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+        self.aabb = Aabb::new(lo, hi);
+    }
+
+    /// The part moved to `live`, refitted now.
+    fn refit_now(&mut self, live: &[Vec3], refits: &Refits) {
+        let start = Instant::now();
+        let mut mesh = self
+            .fitted
+            .take()
+            .or_else(|| {
+                self.stale
+                    .get_mut()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .take()
+            })
+            .expect("a part's mesh is either fitted or waiting for its refit");
+        self.refit(&mut mesh, live);
+        self.aabb = mesh.local_aabb();
+        self.fitted = OnceLock::from(mesh);
+        refits.add(start);
+    }
+
+    /// Whether the part is fitted to the live vertices.
+    #[cfg(test)]
+    fn is_fitted(&self) -> bool {
+        self.fitted.get().is_some()
+    }
+}
+
+/// Parts refitted and the time their refits took, since the mesh was built (summed over
+/// threads).
+#[derive(Debug, Default)]
+pub(super) struct Refits {
+    count: AtomicU64,
+    nanos: AtomicU64,
+}
+
+impl Clone for Refits {
+    fn clone(&self) -> Self {
+        let (count, nanos) = self.get();
+        Self {
+            count: AtomicU64::new(count),
+            nanos: AtomicU64::new(nanos),
+        }
+    }
+}
+
+impl Refits {
+    fn add(&self, start: Instant) {
+        let nanos = start.elapsed().as_nanos().min(u128::from(u64::MAX)) as u64;
+        self.count.fetch_add(1, Ordering::Relaxed);
+        self.nanos.fetch_add(nanos, Ordering::Relaxed);
+    }
+
+    /// `(parts refitted, nanoseconds)`.
+    pub(super) fn get(&self) -> (u64, u64) {
+        (
+            self.count.load(Ordering::Relaxed),
+            self.nanos.load(Ordering::Relaxed),
+        )
     }
 }
 
@@ -68,9 +201,10 @@ struct TopNode {
     aabbs: [Aabb; 2],
 }
 
-/// A mesh's triangles in parts, refitted in parallel and searched as one BVH.
+/// A mesh's triangles in parts, searched as one BVH and refitted part by part as searches
+/// need them.
 ///
-/// parry refits a [`TriMesh`](ParryMesh)'s BVH serially and gives no mutable access to it, so
+/// parry refits a [`TriMesh`](ParryMesh)'s BVH whole and gives no mutable access to it, so
 /// a mesh collider holds its triangles in parts: each part is a parry mesh over the triangles
 /// of one subtree of the BVH parry builds over the whole mesh, below its top levels. parry's
 /// binned build splits a set of leaves the same way wherever that set sits in a tree, so each
@@ -79,11 +213,17 @@ struct TopNode {
 /// traversal of the whole tree would, in the same order with the same pruning, and each part's
 /// subtree with parry's own search bounded by the best cost so far: it finds the triangle the
 /// search over the whole mesh finds, ties included.
+///
+/// When the mesh moves, the top levels' boxes are recomputed at once from the parts' vertices,
+/// and each part is refitted when a search first enters it (a skin touches a deforming muscle
+/// over a small part of its surface: the rest of it is not refitted at all). A mesh in one
+/// part is refitted at once.
 #[derive(Debug, Clone)]
 pub(super) struct Parts {
     parts: Vec<Part>,
     /// The whole BVH's wide nodes above the parts, parents before children (empty: one part).
     top: Vec<TopNode>,
+    refits: Refits,
 }
 
 impl Parts {
@@ -125,19 +265,20 @@ impl Parts {
         let Some(parts) = built else {
             return Self::single(whole);
         };
-        let mut out = Self { parts, top };
+        let mut out = Self {
+            parts,
+            top,
+            refits: Refits::default(),
+        };
         out.update_top();
         out
     }
 
     fn single(whole: ParryMesh) -> Self {
         Self {
-            parts: vec![Part {
-                mesh: whole,
-                vertices: Vec::new(),
-                triangles: Vec::new(),
-            }],
+            parts: vec![Part::new(whole, Vec::new(), Vec::new())],
             top: Vec::new(),
+            refits: Refits::default(),
         }
     }
 
@@ -145,84 +286,38 @@ impl Parts {
     pub(super) fn local_aabb(&self) -> Aabb {
         match self.top.first() {
             Some(root) => root.aabbs[0].merged(&root.aabbs[1]),
-            None => self.parts[0].mesh.local_aabb(),
+            None => self.parts[0].aabb,
         }
     }
 
-    /// Moves every part to the mesh vertices `source` gives (`source(g)`: vertex `g`),
-    /// refits the parts' BVHs, runs `check(c)` for every `c` in `0..checks` and then `extra`
-    /// once, after every `check` has returned.
-    ///
-    /// The parts (largest first), the checks and `extra` are jobs taken in turn by the calling
-    /// thread, which starts at once, and by rayon tasks that join as threads come free: a busy
-    /// machine costs no worse than one thread doing it all, a free core halves the time, and
-    /// the short checks last even out the threads' ends. The thread that finishes the last
-    /// check runs `extra` (a caller's checks read what its `extra` writes). Each refit depends
-    /// only on `source`: the result is the same whichever thread runs it, for any thread
-    /// count.
-    pub(super) fn refit_with<S, C, E>(&mut self, source: &S, checks: usize, check: C, extra: E)
-    where
-        S: Fn(usize) -> Vec3 + Sync,
-        C: Fn(usize) + Sync,
-        E: FnOnce() + Send,
-    {
+    /// Moves every part to `live` (the mesh's vertices): a mesh in one part is refitted now;
+    /// the parts of a split mesh wait for the first search that enters them
+    /// ([`Part::mesh`]), and the top levels' boxes are recomputed now.
+    pub(super) fn move_to(&mut self, live: &[Vec3]) {
         if let [part] = &mut self.parts[..] {
-            (0..checks).for_each(&check);
-            extra();
-            part.refit(source);
+            part.refit_now(live, &self.refits);
             return;
         }
-        // Largest first: the last jobs are the smallest, so the threads finish together.
-        let mut order: Vec<usize> = (0..self.parts.len()).collect();
-        order.sort_by_key(|&p| std::cmp::Reverse(self.parts[p].mesh.indices().len()));
-        let mut slots: Vec<Option<Mutex<&mut Part>>> =
-            self.parts.iter_mut().map(|p| Some(Mutex::new(p))).collect();
-        let slots: Vec<Mutex<&mut Part>> = order
-            .iter()
-            .map(|&p| slots[p].take().expect("each part once"))
-            .collect();
-        let extra = Mutex::new(Some(extra));
-        let run_extra = || {
-            let f = extra.lock().unwrap_or_else(PoisonError::into_inner).take();
-            if let Some(f) = f {
-                f();
-            }
-        };
-        // Jobs: the parts, then the checks (the smallest jobs last), then `extra` itself when
-        // there are no checks.
-        let parts = slots.len();
-        let jobs = parts + checks + usize::from(checks == 0);
-        let (next, checked) = (AtomicUsize::new(0), AtomicUsize::new(0));
-        let work = || {
-            loop {
-                let job = next.fetch_add(1, Ordering::Relaxed);
-                if let Some(slot) = slots.get(job) {
-                    slot.lock()
-                        .unwrap_or_else(PoisonError::into_inner)
-                        .refit(source);
-                } else if job < parts + checks {
-                    check(job - parts);
-                    // The last check to finish (its reads and the others' before `extra`'s
-                    // writes: acquire-release) runs `extra`.
-                    if checked.fetch_add(1, Ordering::AcqRel) + 1 == checks {
-                        run_extra();
-                    }
-                } else if job < jobs {
-                    run_extra();
-                } else {
-                    break;
-                }
-            }
-        };
-        let helpers = rayon::current_num_threads().min(jobs - 1);
-        rayon::in_place_scope(|scope| {
-            for _ in 0..helpers {
-                scope.spawn(|_| work());
-            }
-            work();
-        });
-        drop(slots);
+        for part in &mut self.parts {
+            part.defer(live);
+        }
         self.update_top();
+    }
+
+    /// The parts' refits so far: `(parts refitted, nanoseconds)`, summed over threads.
+    pub(super) fn refits(&self) -> (u64, u64) {
+        self.refits.get()
+    }
+
+    /// The number of parts.
+    pub(super) fn count(&self) -> usize {
+        self.parts.len()
+    }
+
+    /// The refit counter [`Part::mesh`] adds to.
+    #[inline]
+    pub(super) fn refit_counter(&self) -> &Refits {
+        &self.refits
     }
 
     /// Recomputes the top nodes' boxes from the parts' (children before parents).
@@ -230,7 +325,7 @@ impl Parts {
         for i in (0..self.top.len()).rev() {
             for k in 0..2 {
                 self.top[i].aabbs[k] = match self.top[i].children[k] {
-                    Child::Part(p) => self.parts[p as usize].mesh.local_aabb(),
+                    Child::Part(p) => self.parts[p as usize].aabb,
                     Child::Node(j) => {
                         let a = &self.top[j as usize].aabbs;
                         a[0].merged(&a[1])
@@ -312,18 +407,23 @@ impl Parts {
     }
 
     /// Every part's vertices, and its BVH's nodes in traversal order (boxes as bits, leaves as
-    /// mesh triangle ids): equal fingerprints, equal parts.
-    pub(super) fn fingerprint(&self) -> Vec<(Vec<[u32; 3]>, Vec<Visited>)> {
+    /// mesh triangle ids), each part fitted to `live` first: equal fingerprints, equal parts.
+    pub(super) fn fingerprint(&self, live: &[Vec3]) -> Vec<(Vec<[u32; 3]>, Vec<Visited>)> {
         self.parts
             .iter()
             .map(|p| {
-                let v = p
-                    .mesh
+                let mesh = p.mesh(live, &self.refits);
+                assert_eq!(
+                    visited_box(&p.aabb),
+                    visited_box(&mesh.local_aabb()),
+                    "a part's box is its refitted BVH's"
+                );
+                let v = mesh
                     .vertices()
                     .iter()
                     .map(|v| v.to_array().map(f32::to_bits));
                 let mut nodes = Vec::new();
-                p.mesh.bvh().traverse(|node| {
+                mesh.bvh().traverse(|node| {
                     nodes.push(visited(node, |t| p.global(t)));
                     TraversalAction::Continue
                 });
@@ -334,7 +434,23 @@ impl Parts {
 
     /// The number of triangles in each part.
     pub(super) fn sizes(&self) -> Vec<usize> {
-        self.parts.iter().map(|p| p.mesh.indices().len()).collect()
+        self.parts
+            .iter()
+            .map(|p| match p.fitted.get() {
+                Some(m) => m.indices().len(),
+                None => p
+                    .stale
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .as_ref()
+                    .map_or(0, |m| m.indices().len()),
+            })
+            .collect()
+    }
+
+    /// The number of parts fitted to the live vertices.
+    pub(super) fn fitted(&self) -> usize {
+        self.parts.iter().filter(|p| p.is_fitted()).count()
     }
 
     /// Depth of the top levels above the parts (0: one part).
@@ -441,7 +557,13 @@ fn subtree_leaves(bvh: &Bvh, index: BvhNodeIndex) -> Vec<u32> {
 
 /// One node of a traversal, for comparing two trees: box and leaf id (`None` for an internal
 /// node).
-type Visited = ([u32; 6], Option<u32>);
+pub(super) type Visited = ([u32; 6], Option<u32>);
+
+#[cfg(test)]
+fn visited_box(a: &Aabb) -> [u32; 6] {
+    let (lo, hi) = (a.mins, a.maxs);
+    [lo.x, lo.y, lo.z, hi.x, hi.y, hi.z].map(f32::to_bits)
+}
 
 fn visited(node: &BvhNode, leaf: impl Fn(u32) -> u32) -> Visited {
     let (lo, hi) = (node.mins(), node.maxs());
@@ -485,9 +607,5 @@ fn make_part(whole: &ParryMesh, tris: Vec<u32>, subtree: BvhNodeIndex) -> Option
         got.push(visited(node, |t| tris[t as usize]));
         TraversalAction::Continue
     });
-    (expected.get(1..) == Some(&got[..])).then_some(Part {
-        mesh,
-        vertices,
-        triangles: tris,
-    })
+    (expected.get(1..) == Some(&got[..])).then(|| Part::new(mesh, vertices, tris))
 }

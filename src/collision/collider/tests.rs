@@ -51,6 +51,11 @@ fn mesh(c: &ColliderMesh) -> &MeshShape {
     }
 }
 
+/// The parts of `m` fitted to its live vertices (see `Parts::fingerprint`).
+fn fingerprint(m: &MeshShape) -> Vec<(Vec<[u32; 3]>, Vec<parts::Visited>)> {
+    m.parts.fingerprint(&m.live)
+}
+
 fn bits(p: &SurfaceProjection) -> [u32; 11] {
     let [a, b, c] = p.point.to_array().map(f32::to_bits);
     let [d, e, f] = p.normal.to_array().map(f32::to_bits);
@@ -263,8 +268,8 @@ fn split_mesh_answers_like_one_parry_mesh() {
     assert!(certified > points.len(), "{certified} certified answers");
 }
 
-/// Refitting parts on one rayon thread or two gives the same parts, bit for bit, and so the
-/// same answers.
+/// Parts refitted on one rayon thread or two (by queries after the moves) are the same parts,
+/// bit for bit, and so give the same answers.
 #[test]
 fn refit_is_the_same_on_one_and_two_threads() {
     let (v, t) = muscle(48, 80);
@@ -285,13 +290,15 @@ fn refit_is_the_same_on_one_and_two_threads() {
             c.commit_frame();
             c.set_vertices(&deform(&v, 2.1)).unwrap();
             c.enter_substep(0.25, &Pose::IDENTITY, true);
+            // The parts are refitted by the queries that reach them, from the pool's threads.
+            let points = probes(c, &mut Lcg(5));
+            let c = &*c;
+            points.par_iter().for_each(|p| {
+                c.project_local(*p, NONE);
+            });
         });
     }
-    assert_eq!(
-        mesh(&a).parts.fingerprint(),
-        mesh(&b).parts.fingerprint(),
-        "parts"
-    );
+    assert_eq!(fingerprint(mesh(&a)), fingerprint(mesh(&b)), "parts");
     assert_eq!(aabb_bits(a.local_aabb()), aabb_bits(b.local_aabb()));
     assert_eq!(a.travel_m().to_bits(), b.travel_m().to_bits());
     let mut rng = Lcg(3);
@@ -329,10 +336,7 @@ fn bench_muscle_refits_alike_in_and_out_of_pools() {
     crate::test_support::in_pool(2, || run(&mut runs[1]));
     run(&mut runs[2]);
     for c in &runs[1..] {
-        assert_eq!(
-            mesh(c).parts.fingerprint(),
-            mesh(&runs[0]).parts.fingerprint()
-        );
+        assert_eq!(fingerprint(mesh(c)), fingerprint(mesh(&runs[0])));
     }
     // The bounds: the largest displacements, read serially.
     let largest = |a: &[Vec3], b: &[Vec3]| {
@@ -364,13 +368,13 @@ fn bench_muscle_refits_alike_in_and_out_of_pools() {
     );
 
     // A non-finite vertex in a late check and another in the last: the first is named, the
-    // collider is left exactly as it was (parts refitted back), on any pool.
+    // collider is left exactly as it was, on any pool.
     let mut bad = deform(&v, 2.7);
     let (first, last) = (3 * CHECK_CHUNK + 11, v.len() - 2);
     bad[first].z = f32::NAN;
     bad[last].x = f32::NEG_INFINITY;
     for (k, c) in runs.iter_mut().enumerate() {
-        let fingerprint = mesh(c).parts.fingerprint();
+        let before = fingerprint(mesh(c));
         let aabb = aabb_bits(c.local_aabb());
         let mut refresh = || c.set_vertices(&bad);
         let result = match k {
@@ -382,7 +386,7 @@ fn bench_muscle_refits_alike_in_and_out_of_pools() {
             Err(CollisionError::NonFinite { index, .. }) => assert_eq!(index, first),
             other => panic!("expected NonFinite, got {other:?}"),
         }
-        assert_eq!(mesh(c).parts.fingerprint(), fingerprint);
+        assert_eq!(fingerprint(mesh(c)), before);
         assert_eq!(aabb_bits(c.local_aabb()), aabb);
         assert_eq!(mesh(c).live, shapes[1]);
         assert_eq!(mesh(c).current, shapes[1]);
@@ -391,7 +395,77 @@ fn bench_muscle_refits_alike_in_and_out_of_pools() {
     }
 }
 
-/// The part rule: the bench's 50k-triangle muscle is refitted in parts of at most
+/// A split mesh refits a part only when a query first reaches it: after a move no part is
+/// fitted, queries at one tip of the bench's muscle fit a few of its parts and answer as parry's
+/// mesh over all the triangles refitted to the new shape, and a clone taken while every part
+/// waits answers every probe bit for bit alike with its queries run from two threads at once,
+/// each part it needs refitted once.
+#[test]
+fn parts_are_refitted_when_a_query_first_reaches_them() {
+    let (v, t) = muscle(126, 200);
+    let mut c = ColliderMesh::from_mesh(v.clone(), t.clone()).unwrap();
+    let n = c.part_count();
+    assert!(n >= 8, "{n} parts");
+    assert_eq!(mesh(&c).parts.fitted(), n);
+    let shape = deform(&v, 1.1);
+    let before = c.refit_stats();
+    c.set_vertices(&shape).unwrap();
+    assert_eq!(mesh(&c).parts.fitted(), 0);
+    assert_eq!(c.refit_stats(), before);
+    let clone = c.clone();
+
+    // Just outside the muscle's tip (its largest z), where few parts are.
+    let mut reference = ParryMesh::new(v.clone(), t.clone()).unwrap();
+    reference.set_vertices(&shape);
+    let tip = shape
+        .iter()
+        .copied()
+        .max_by(|a, b| a.z.total_cmp(&b.z))
+        .unwrap();
+    for k in 0..20 {
+        let p = tip + Vec3::new(0.0005 * k as f32, -0.0003 * k as f32, 0.002);
+        let got = c.project_local(p, NONE);
+        let want = CompositeShapeRef(&reference)
+            .project_local_point(p, f32::MAX, false)
+            .unwrap();
+        assert_eq!(got.part, want.0, "probe {k}");
+        assert_eq!(got.point, want.1.point, "probe {k}");
+    }
+    let fitted = mesh(&c).parts.fitted();
+    assert!(
+        fitted >= 1 && fitted <= n / 4,
+        "{fitted} of {n} parts refitted"
+    );
+    let stats = c.refit_stats();
+    assert_eq!(stats.parts_refitted - before.parts_refitted, fitted as u64);
+    assert!(stats.seconds > before.seconds);
+
+    // Every probe, on the original (some parts fitted) and on the clone (none) from two
+    // threads at once.
+    let points = probes(&c, &mut Lcg(41));
+    let serial: Vec<_> = points
+        .iter()
+        .map(|p| bits(&c.project_local(*p, NONE)))
+        .collect();
+    let refitted = clone.refit_stats().parts_refitted;
+    let parallel: Vec<_> = crate::test_support::in_pool(2, || {
+        points
+            .par_iter()
+            .map(|p| bits(&clone.project_local(*p, NONE)))
+            .collect()
+    });
+    assert_eq!(serial, parallel);
+    let fitted = mesh(&clone).parts.fitted();
+    assert!(fitted > n / 2, "{fitted} of {n}");
+    assert_eq!(
+        clone.refit_stats().parts_refitted - refitted,
+        fitted as u64,
+        "each part refitted once"
+    );
+    assert_eq!(fingerprint(mesh(&clone)), fingerprint(mesh(&c)));
+}
+
+/// The part rule: the bench's 50k-triangle muscle is held in parts of at most
 /// [`parts::PART_TRIANGLES`] (more than one), a small mesh in one; `parry_mesh` is the whole
 /// mesh in its current shape either way.
 #[test]
@@ -411,7 +485,8 @@ fn part_rule_and_whole_parry_mesh() {
     let parry = big.parry_mesh().unwrap();
     assert_eq!(parry.vertices(), &shape[..]);
     assert_eq!(parry.indices(), &t[..]);
-    let (v, t) = muscle(24, 36);
+    let (v, t) = muscle(12, 20);
+    assert!(t.len() <= parts::PART_TRIANGLES);
     let small = ColliderMesh::from_mesh(v, t).unwrap();
     assert_eq!(mesh(&small).parts.len(), 1);
 }
@@ -425,7 +500,7 @@ fn split_refresh_rejects_bad_vertices_unchanged() {
     assert!(mesh(&c).parts.len() > 1);
     c.set_vertices(&deform(&v, 0.5)).unwrap();
     let before = (
-        mesh(&c).parts.fingerprint(),
+        fingerprint(mesh(&c)),
         c.travel_m(),
         c.project_local(Vec3::X, NONE),
     );
@@ -443,7 +518,7 @@ fn split_refresh_rejects_bad_vertices_unchanged() {
         other => panic!("expected Length, got {other:?}"),
     }
     let after = (
-        mesh(&c).parts.fingerprint(),
+        fingerprint(mesh(&c)),
         c.travel_m(),
         c.project_local(Vec3::X, NONE),
     );
