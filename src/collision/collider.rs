@@ -430,6 +430,16 @@ impl ColliderMesh {
         }
     }
 
+    /// Refits every part of a mesh collider's BVH that waits for its refit, now, in parallel
+    /// (rayon), instead of when queries first reach them (see
+    /// [`refit_stats`](Self::refit_stats)): for a caller that wants the whole cost up front,
+    /// say to time queries alone. Answers are the same either way. Nothing for primitives.
+    pub fn refit_all(&self) {
+        if let Shape::Mesh(m) = &self.shape {
+            m.parts.refit_all(&m.live);
+        }
+    }
+
     /// The number of parts a mesh collider's BVH is held in (see
     /// [`refit_stats`](Self::refit_stats)); 0 for primitives.
     pub fn part_count(&self) -> usize {

@@ -5,6 +5,7 @@ use glam::Vec3;
 use parry3d::bounding_volume::{Aabb, BoundingVolume};
 use parry3d::partitioning::{Bvh, BvhNode, BvhNodeIndex, TraversalAction};
 use parry3d::shape::TriMesh as ParryMesh;
+use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Mutex, OnceLock, PoisonError};
 use std::time::Instant;
@@ -298,10 +299,15 @@ impl Parts {
             part.refit_now(live, &self.refits);
             return;
         }
-        for part in &mut self.parts {
-            part.defer(live);
-        }
+        self.parts.par_iter_mut().for_each(|part| part.defer(live));
         self.update_top();
+    }
+
+    /// Refits every part that waits for its refit, in parallel.
+    pub(super) fn refit_all(&self, live: &[Vec3]) {
+        self.parts.par_iter().for_each(|p| {
+            p.mesh(live, &self.refits);
+        });
     }
 
     /// The parts' refits so far: `(parts refitted, nanoseconds)`, summed over threads.

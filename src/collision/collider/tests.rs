@@ -463,6 +463,15 @@ fn parts_are_refitted_when_a_query_first_reaches_them() {
         "each part refitted once"
     );
     assert_eq!(fingerprint(mesh(&clone)), fingerprint(mesh(&c)));
+
+    // `refit_all` fits every part now, each once.
+    c.set_vertices(&v).unwrap();
+    let before = c.refit_stats().parts_refitted;
+    c.refit_all();
+    assert_eq!(mesh(&c).parts.fitted(), n);
+    assert_eq!(c.refit_stats().parts_refitted - before, n as u64);
+    c.refit_all();
+    assert_eq!(c.refit_stats().parts_refitted - before, n as u64);
 }
 
 /// The part rule: the bench's 50k-triangle muscle is held in parts of at most
