@@ -321,8 +321,9 @@ impl ColliderMesh {
     /// Deforms a mesh collider (rest-frame positions, same count and order as built): a BVH
     /// refit, no pseudo-normal recomputation. A mesh of more than 1,024 triangles holds its
     /// BVH in subtrees of at most that many, which answer every query exactly as one BVH over
-    /// the whole mesh: this call checks the input and recomputes the boxes above the subtrees,
-    /// and each subtree is refitted when a query first reaches it (see
+    /// the whole mesh: this call checks the input, recomputes the boxes above the subtrees and
+    /// refits (in parallel) the subtrees queries reached since the last move, and each other
+    /// subtree is refitted when a query first reaches it (see
     /// [`refit_stats`](Self::refit_stats)). A non-finite or wrongly sized input is an error
     /// and leaves the collider as it was.
     pub fn set_vertices(&mut self, vertices: &[Vec3]) -> Result<(), CollisionError> {
@@ -400,10 +401,10 @@ impl ColliderMesh {
     /// primitives, which are never refitted).
     ///
     /// A mesh of more than 1,024 triangles holds its BVH in parts (subtrees of at most that
-    /// many triangles): [`set_vertices`](Self::set_vertices)
-    /// recomputes only the boxes above them, and each part is refitted when a query first
-    /// reaches it, so a skin that touches a small region of a large deforming mesh refits only
-    /// that region. These counts show how much that was.
+    /// many triangles): [`set_vertices`](Self::set_vertices) recomputes the boxes above them
+    /// and refits the parts queries reached since the last move; every other part is refitted
+    /// when a query first reaches it, so a skin that touches a small region of a large
+    /// deforming mesh refits only that region. These counts show how much that was.
     ///
     /// ```
     /// use dermis::collision::ColliderMesh;

@@ -6,7 +6,7 @@ use parry3d::bounding_volume::{Aabb, BoundingVolume};
 use parry3d::partitioning::{Bvh, BvhNode, BvhNodeIndex, TraversalAction};
 use parry3d::shape::TriMesh as ParryMesh;
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Mutex, OnceLock, PoisonError};
 use std::time::Instant;
 
@@ -21,10 +21,11 @@ pub(crate) const PART_TRIANGLES: usize = 1024;
 /// Triangles of one subtree, as a parry mesh over their own vertices.
 ///
 /// A part of a split mesh holds its mesh in one of two states: fitted to the mesh's live
-/// vertices (`fitted`), or awaiting its refit (`stale`) since the vertices last moved. The
-/// first search to enter it refits it (parry's refit: the BVH depends only on the vertices it
-/// is fitted to, so a part refitted late, by any thread, is the part refitted at once). Its box
-/// is kept current at every move: the top levels prune with it.
+/// vertices (`fitted`), or awaiting its refit (`stale`) since the vertices last moved. A move
+/// refits at once the parts a search entered since the move before (`used`); the others wait,
+/// and the first search to enter one refits it (parry's refit: the BVH depends only on the
+/// vertices it is fitted to, so a part refitted late, by any thread, is the part refitted at
+/// once). Its box is kept current at every move: the top levels prune with it.
 #[derive(Debug)]
 pub(super) struct Part {
     /// The part's triangles over part-local vertices, without `ORIENTED`, fitted to the live
@@ -35,6 +36,8 @@ pub(super) struct Part {
     /// The box of the part's vertices at the live vertices: parry's root box of the refitted
     /// BVH, bit for bit (min and max are exact).
     aabb: Aabb,
+    /// A search entered the part since it last moved: the next move refits it at once.
+    used: AtomicBool,
     /// Part-local vertex → mesh vertex (empty: the identity, a part holding the whole mesh).
     vertices: Vec<u32>,
     /// Part-local triangle → mesh triangle (empty: the identity).
@@ -52,6 +55,7 @@ impl Clone for Part {
             fitted: self.fitted.clone(),
             stale: Mutex::new(stale),
             aabb: self.aabb,
+            used: AtomicBool::new(self.used.load(Ordering::Relaxed)),
             vertices: self.vertices.clone(),
             triangles: self.triangles.clone(),
         }
@@ -64,6 +68,7 @@ impl Part {
             aabb: mesh.local_aabb(),
             fitted: OnceLock::from(mesh),
             stale: Mutex::new(None),
+            used: AtomicBool::new(false),
             vertices,
             triangles,
         }
@@ -80,10 +85,20 @@ impl Part {
     }
 
     /// The part's parry mesh fitted to `live` (the mesh's live vertices, which the part was
-    /// last moved to): refitted here, once, if it waits for its refit. Concurrent callers wait
-    /// for the one refitting it.
+    /// last moved to), for a search entering it: refitted here, once, if it waits for its
+    /// refit (concurrent callers wait for the one refitting it), and marked for a refit at
+    /// the next move.
     #[inline]
     pub(super) fn mesh(&self, live: &[Vec3], refits: &Refits) -> &ParryMesh {
+        if !self.used.load(Ordering::Relaxed) {
+            self.used.store(true, Ordering::Relaxed);
+        }
+        self.fit(live, refits)
+    }
+
+    /// The part's parry mesh fitted to `live`, refitted here if it waits (not marked).
+    #[inline]
+    fn fit(&self, live: &[Vec3], refits: &Refits) -> &ParryMesh {
         self.fitted.get_or_init(|| {
             let start = Instant::now();
             let mut mesh = self
@@ -216,9 +231,9 @@ struct TopNode {
 /// search over the whole mesh finds, ties included.
 ///
 /// When the mesh moves, the top levels' boxes are recomputed at once from the parts' vertices,
-/// and each part is refitted when a search first enters it (a skin touches a deforming muscle
-/// over a small part of its surface: the rest of it is not refitted at all). A mesh in one
-/// part is refitted at once.
+/// the parts searched since the last move are refitted at once (in parallel), and each other
+/// part when a search first enters it (a skin touches a deforming muscle over a small part of
+/// its surface: the rest of it is not refitted at all). A mesh in one part is refitted at once.
 #[derive(Debug, Clone)]
 pub(super) struct Parts {
     parts: Vec<Part>,
@@ -292,21 +307,29 @@ impl Parts {
     }
 
     /// Moves every part to `live` (the mesh's vertices): a mesh in one part is refitted now;
-    /// the parts of a split mesh wait for the first search that enters them
-    /// ([`Part::mesh`]), and the top levels' boxes are recomputed now.
+    /// of a split mesh, the parts a search entered since the last move are refitted now, in
+    /// parallel (the skin most likely reaches them again), and the others wait for the first
+    /// search that enters them ([`Part::mesh`]); the top levels' boxes are recomputed now.
     pub(super) fn move_to(&mut self, live: &[Vec3]) {
         if let [part] = &mut self.parts[..] {
             part.refit_now(live, &self.refits);
             return;
         }
-        self.parts.par_iter_mut().for_each(|part| part.defer(live));
+        let refits = &self.refits;
+        self.parts.par_iter_mut().for_each(|part| {
+            if std::mem::take(part.used.get_mut()) {
+                part.refit_now(live, refits);
+            } else {
+                part.defer(live);
+            }
+        });
         self.update_top();
     }
 
     /// Refits every part that waits for its refit, in parallel.
     pub(super) fn refit_all(&self, live: &[Vec3]) {
         self.parts.par_iter().for_each(|p| {
-            p.mesh(live, &self.refits);
+            p.fit(live, &self.refits);
         });
     }
 
@@ -418,7 +441,7 @@ impl Parts {
         self.parts
             .iter()
             .map(|p| {
-                let mesh = p.mesh(live, &self.refits);
+                let mesh = p.fit(live, &self.refits);
                 assert_eq!(
                     visited_box(&p.aabb),
                     visited_box(&mesh.local_aabb()),

@@ -395,11 +395,12 @@ fn bench_muscle_refits_alike_in_and_out_of_pools() {
     }
 }
 
-/// A split mesh refits a part only when a query first reaches it: after a move no part is
-/// fitted, queries at one tip of the bench's muscle fit a few of its parts and answer as parry's
-/// mesh over all the triangles refitted to the new shape, and a clone taken while every part
-/// waits answers every probe bit for bit alike with its queries run from two threads at once,
-/// each part it needs refitted once.
+/// A split mesh refits a part when a query first reaches it, or at the move after one did:
+/// after a move with no query since the last, no part is fitted; queries at one tip of the
+/// bench's muscle fit a few of its parts and answer as parry's mesh over all the triangles
+/// refitted to the new shape; a clone taken while every part waits answers every probe bit
+/// for bit alike with its queries run from two threads at once, each part it needs refitted
+/// once; the next move refits the parts queries entered, and only those.
 #[test]
 fn parts_are_refitted_when_a_query_first_reaches_them() {
     let (v, t) = muscle(126, 200);
@@ -422,8 +423,10 @@ fn parts_are_refitted_when_a_query_first_reaches_them() {
         .copied()
         .max_by(|a, b| a.z.total_cmp(&b.z))
         .unwrap();
-    for k in 0..20 {
-        let p = tip + Vec3::new(0.0005 * k as f32, -0.0003 * k as f32, 0.002);
+    let tip_points: Vec<Vec3> = (0..20)
+        .map(|k| tip + Vec3::new(0.0005 * k as f32, -0.0003 * k as f32, 0.002))
+        .collect();
+    for (k, &p) in tip_points.iter().enumerate() {
         let got = c.project_local(p, NONE);
         let want = CompositeShapeRef(&reference)
             .project_local_point(p, f32::MAX, false)
@@ -464,14 +467,28 @@ fn parts_are_refitted_when_a_query_first_reaches_them() {
     );
     assert_eq!(fingerprint(mesh(&clone)), fingerprint(mesh(&c)));
 
-    // `refit_all` fits every part now, each once.
+    // The next move refits at once, in parallel, the parts that searches entered since the
+    // last one (the skin most likely reaches them again): here every part. After searches at
+    // the tip only, the move after refits only theirs; `refit_all` fits the others now, each
+    // part once in all.
     c.set_vertices(&v).unwrap();
+    assert_eq!(mesh(&c).parts.fitted(), n);
+    for &p in &tip_points {
+        c.project_local(p, NONE);
+    }
     let before = c.refit_stats().parts_refitted;
+    c.set_vertices(&shape).unwrap();
+    let used = mesh(&c).parts.fitted();
+    assert!(used >= 1 && used <= n / 4, "{used} of {n}");
+    assert_eq!(c.refit_stats().parts_refitted - before, used as u64);
     c.refit_all();
     assert_eq!(mesh(&c).parts.fitted(), n);
     assert_eq!(c.refit_stats().parts_refitted - before, n as u64);
     c.refit_all();
     assert_eq!(c.refit_stats().parts_refitted - before, n as u64);
+    // `refit_all` is no search: a move with no search since the last refits no part.
+    c.set_vertices(&v).unwrap();
+    assert_eq!(mesh(&c).parts.fitted(), 0);
 }
 
 /// The part rule: the bench's 50k-triangle muscle is held in parts of at most
