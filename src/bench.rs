@@ -207,16 +207,18 @@ pub struct WorkloadReport {
     /// without collision).
     pub collision_speedup_vs_naive: Option<f64>,
     /// Median over the timed frames of the muscle's refit, ms: its
-    /// [`set_vertices`](crate::collision::ColliderMesh::set_vertices) plus the refits of the
-    /// parts the frame's queries reached, summed over threads (see
+    /// [`set_vertices`](crate::collision::ColliderMesh::set_vertices) (which refits the parts
+    /// searched the frame before) plus the refits of the parts the frame's queries reached
+    /// first, summed over threads (see
     /// [`refit_stats`](crate::collision::ColliderMesh::refit_stats); those refits run inside
     /// the contact work and are in its times too) (`null` without collision).
     pub collider_refresh_ms: Option<f64>,
     /// Mean time per frame of the refits of the muscle's parts that the frame's queries
-    /// reached, ms, summed over threads: part of `collider_refresh_ms`, and spent inside the
-    /// contact work, so also part of `collision_us_per_vertex` (`null` without collision).
+    /// reached first (after `set_vertices`, which refits the parts searched the frame before),
+    /// ms, summed over threads: part of `collider_refresh_ms`, and spent inside the contact
+    /// work, so also part of `collision_us_per_vertex` (`null` without collision).
     pub collider_deferred_refit_ms: Option<f64>,
-    /// Mean number of the muscle's BVH parts refitted per frame, of
+    /// Mean number of the muscle's BVH parts refitted per frame after `set_vertices`, of
     /// `collider_parts` (`null` without collision).
     pub collider_parts_refitted_per_frame: Option<f64>,
     /// Parts the muscle's BVH is held in (`null` without collision).
@@ -898,11 +900,13 @@ mod tests {
                 continue;
             }
             assert_eq!(w["collider_triangles"], 2 * 32 * 19);
-            // The muscle is in parts, and the frames' queries refitted some of them.
-            let parts = w["collider_parts"].as_u64().unwrap();
+            // The muscle is in parts; each is refitted at most once per move of the muscle
+            // (its `set_vertices` and one per substep).
+            let parts = w["collider_parts"].as_u64().unwrap() as f64;
             let refitted = w["collider_parts_refitted_per_frame"].as_f64().unwrap();
+            let substeps = w["substeps_per_frame_mean"].as_f64().unwrap();
             assert!(
-                parts >= 1 && refitted > 0.0,
+                parts >= 2.0 && refitted <= parts * (1.0 + substeps),
                 "{parts} parts, {refitted} refitted"
             );
             // The contact time's three parts make up the whole.

@@ -267,12 +267,12 @@ pub struct FrameTimes {
     pub total_s: f64,
     /// [`ColliderMesh::set_vertices`] of the muscle, s.
     pub refresh_s: f64,
-    /// The muscle's parts refitted during the frame, when a query first reached them (see
+    /// The muscle's parts refitted after `set_vertices`, when a query first reached them (see
     /// [`ColliderMesh::refit_stats`]): their refit time, s, summed over threads. It is spent
     /// inside the frame plan, the substep passes and the projections, and counted in their
     /// times too.
     pub deferred_refit_s: f64,
-    /// The muscle's parts refitted during the frame.
+    /// The muscle's parts refitted after `set_vertices` (when a query first reached them).
     pub parts_refitted: u64,
     /// The contact frame plan, s.
     pub plan_s: f64,
@@ -415,12 +415,14 @@ impl ArmRun {
             }
         }
 
-        let refits = self.muscle_refits();
         let refresh = Instant::now();
         self.contact
             .collider_mut(self.ids.muscle)?
             .set_vertices(&muscle)?;
         let refresh_s = refresh.elapsed().as_secs_f64();
+        // The parts refitted from here on are the ones the frame's queries reached first
+        // (`set_vertices` refitted those searched last frame, inside `refresh_s`).
+        let refits = self.muscle_refits();
         self.contact.collider_mut(self.ids.ulna)?.set_pose(pose)?;
         let frame_relax = relax_frame(
             system,
