@@ -51,8 +51,15 @@ impl Clone for Part {
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
             .clone();
+        // Neither state: a search on another thread is refitting the part (it took the stale
+        // mesh); the clone waits for that refit.
+        let fitted = match (&stale, self.fitted.get()) {
+            (_, Some(mesh)) => OnceLock::from(mesh.clone()),
+            (Some(_), None) => OnceLock::new(),
+            (None, None) => OnceLock::from(self.fitted.wait().clone()),
+        };
         Self {
-            fitted: self.fitted.clone(),
+            fitted,
             stale: Mutex::new(stale),
             aabb: self.aabb,
             used: AtomicBool::new(self.used.load(Ordering::Relaxed)),
@@ -637,4 +644,32 @@ fn make_part(whole: &ParryMesh, tris: Vec<u32>, subtree: BvhNodeIndex) -> Option
         TraversalAction::Continue
     });
     (expected.get(1..) == Some(&got[..])).then(|| Part::new(mesh, vertices, tris))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A part cloned while another thread refits it (the stale mesh taken, the fitted one not
+    /// yet set) waits for that refit instead of coming out with no mesh.
+    #[test]
+    fn a_part_cloned_during_its_refit_waits_for_it() {
+        let v = vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z];
+        let t = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+        let mesh = ParryMesh::new(v, t).unwrap();
+        let part = Part::new(mesh, vec![0, 1, 2, 3], vec![0, 1, 2, 3]);
+        // The state a search leaves while it refits: the stale mesh taken, none fitted.
+        let mut refitting = part.clone();
+        let mesh = refitting.fitted.take().unwrap();
+        let refitting = refitting;
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                std::thread::sleep(std::time::Duration::from_millis(100));
+                refitting.fitted.set(mesh).unwrap();
+            });
+            let clone = refitting.clone();
+            assert!(clone.fitted.get().is_some(), "the clone has a mesh");
+            assert_eq!(clone.aabb, part.aabb);
+        });
+    }
 }

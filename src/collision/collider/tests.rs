@@ -491,6 +491,38 @@ fn parts_are_refitted_when_a_query_first_reaches_them() {
     assert_eq!(mesh(&c).parts.fitted(), 0);
 }
 
+/// A collider cloned while another thread's queries refit its parts is whole: every clone
+/// answers as the original.
+#[test]
+fn clones_taken_during_refits_answer_alike() {
+    let (v, t) = muscle(126, 200);
+    let mut c = ColliderMesh::from_mesh(v.clone(), t).unwrap();
+    let points = probes(&c, &mut Lcg(7));
+    let want: Vec<_> = points
+        .iter()
+        .map(|p| bits(&c.project_local(*p, NONE)))
+        .collect();
+    for round in 0..3 {
+        c.set_vertices(&v).unwrap();
+        let c = &c;
+        let clones = crate::test_support::in_pool(2, || {
+            let (_, clones) = rayon::join(
+                || {
+                    points
+                        .par_iter()
+                        .for_each(|p| drop(c.project_local(*p, NONE)))
+                },
+                || (0..40).map(|_| c.clone()).collect::<Vec<_>>(),
+            );
+            clones
+        });
+        for (k, clone) in clones.iter().enumerate() {
+            let p = (k * 31 + round) % points.len();
+            assert_eq!(bits(&clone.project_local(points[p], NONE)), want[p]);
+        }
+    }
+}
+
 /// The part rule: the bench's 50k-triangle muscle is held in parts of at most
 /// [`parts::PART_TRIANGLES`] (more than one), a small mesh in one; `parry_mesh` is the whole
 /// mesh in its current shape either way.
