@@ -508,9 +508,9 @@ fn clones_taken_during_refits_answer_alike() {
         let clones = crate::test_support::in_pool(2, || {
             let (_, clones) = rayon::join(
                 || {
-                    points
-                        .par_iter()
-                        .for_each(|p| drop(c.project_local(*p, NONE)))
+                    points.par_iter().for_each(|p| {
+                        c.project_local(*p, NONE);
+                    })
                 },
                 || (0..40).map(|_| c.clone()).collect::<Vec<_>>(),
             );
