@@ -662,13 +662,12 @@ impl MeshShape {
         p: Vec3,
         max_dist: f32,
     ) -> Option<(u32, parry3d::query::PointProjection, TrianglePointLocation)> {
-        let refits = self.parts.refit_counter();
         self.parts
             .find_best(
                 max_dist,
                 |aabb, _| aabb.distance_to_local_point(p, true),
                 |part, bound| {
-                    CompositeShapeRef(part.mesh(&self.live, refits))
+                    CompositeShapeRef(self.part_mesh(part))
                         .project_local_point_and_get_location(p, bound, false)
                         .map(|(t, proj, location)| {
                             ((proj.point - p).length(), (part.global(t), proj, location))
@@ -678,16 +677,22 @@ impl MeshShape {
             .map(|(_, found)| found)
     }
 
+    /// Part `part`'s parry mesh for a search entering it, fitted to the live vertices (see
+    /// [`parts::Part::mesh`]).
+    #[inline]
+    fn part_mesh<'a>(&'a self, part: &'a parts::Part) -> &'a ParryMesh {
+        part.mesh(&self.live, self.parts.refit_counter())
+    }
+
     /// The closest triangle to `p` by parry's search of the whole mesh
     /// (`CompositeShapeRef::project_local_point`, non-solid).
     fn search_point(&self, p: Vec3) -> Option<u32> {
-        let refits = self.parts.refit_counter();
         self.parts
             .find_best(
                 f32::MAX,
                 |aabb, _| aabb.distance_to_local_point(p, true),
                 |part, bound| {
-                    CompositeShapeRef(part.mesh(&self.live, refits))
+                    CompositeShapeRef(self.part_mesh(part))
                         .project_local_point(p, bound, false)
                         .map(|(t, proj)| ((proj.point - p).length(), part.global(t)))
                 },
@@ -698,13 +703,12 @@ impl MeshShape {
     /// The first hit of `ray` within `max_toi` on the (hollow) mesh, as parry's
     /// `TriMesh::cast_local_ray_and_get_normal` finds it.
     fn cast_ray(&self, ray: &Ray, max_toi: f32) -> Option<parry3d::query::RayIntersection> {
-        let refits = self.parts.refit_counter();
         self.parts
             .find_best(
                 max_toi,
                 |aabb, best| aabb.cast_local_ray(ray, best, true).unwrap_or(f32::MAX),
                 |part, best| {
-                    CompositeShapeRef(part.mesh(&self.live, refits))
+                    CompositeShapeRef(self.part_mesh(part))
                         .cast_local_ray_and_get_normal(ray, best, false)
                         .map(|(t, hit)| (hit.time_of_impact, hit.with_subshape(part.global(t))))
                 },
@@ -878,9 +882,8 @@ impl MeshShape {
             }
         };
         // parry's best-first search over the whole mesh, part by part (see `parts`).
-        let refits = self.parts.refit_counter();
         let _ = self.parts.find_best(bound, node_cost, |part, best| {
-            part.mesh(&self.live, refits)
+            self.part_mesh(part)
                 .bvh()
                 .find_best(
                     best,

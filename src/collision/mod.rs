@@ -792,7 +792,8 @@ impl SkinCollision {
                 // The slerp turns about the axis of `R₁ R₀⁻¹` by its angle along the shorter
                 // way (the quaternion with `w >= 0`). The angle from `atan2(|xyz|, w)`, not
                 // from `acos(w)`, which loses small turns to the rounding of `w` near 1.
-                let mut delta = (pose.rotation * prev.rotation.inverse()).normalize();
+                let turn = pose.rotation * prev.rotation.inverse();
+                let mut delta = turn.normalize();
                 if delta.w < 0.0 {
                     delta = -delta;
                 }
@@ -813,7 +814,7 @@ impl SkinCollision {
                     ends: [prev.translation, pose.translation]
                         .map(|t| prev.translation - pose.translation + omega.cross(t)),
                     carry: {
-                        let m = glam::Mat3::from_quat(pose.rotation * prev.rotation.inverse());
+                        let m = glam::Mat3::from_quat(turn);
                         (
                             m - glam::Mat3::IDENTITY,
                             pose.translation - m * prev.translation,
