@@ -18,6 +18,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::{CHUNK, ChunkPass, Counters, Ctx, NONE, Reach, SkinCollision};
+use crate::solver::team::{Chunked, Par};
 
 /// The skip tests and last positions in the solver's order (see the module docs).
 #[derive(Debug, Clone, Default)]
@@ -96,7 +97,8 @@ impl SkinCollision {
     /// A projection pass over `x` in the solver's order (`self.rank_of`, already checked to be
     /// a permutation), with the swept test: what it did, and the `(internal, caller's)` index
     /// of every vertex touching a collider after it, by increasing internal index; `None` when
-    /// there is nothing to collide with.
+    /// there is nothing to collide with. Its loops run on the team of the solve that calls it,
+    /// if any ([`Par::current`]): its helpers are awake, where rayon's may sleep.
     pub(super) fn project_pass(&mut self, x: &mut [Vec3]) -> Option<(ChunkPass, Vec<(u32, u32)>)> {
         let nc = self.colliders.len();
         let n = x.len();
@@ -108,44 +110,64 @@ impl SkinCollision {
         if !(self.view.valid && self.view.key == self.travel_seen) {
             self.rebuild_view(travel_sum);
         }
+        Par::current(|par| Some(self.pass_on(par, x, &travel, travel_sum)))
+    }
 
+    /// [`project_pass`](Self::project_pass) once the view is up to date, its loops on `par`.
+    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
+    fn pass_on(
+        &mut self,
+        par: Par<'_>,
+        x: &mut [Vec3],
+        travel: &[f64],
+        travel_sum: f64,
+    ) -> (ChunkPass, Vec<(u32, u32)>) {
+        let nc = self.colliders.len();
+        let n = x.len();
         // The skip test of every vertex, in order; the ones that fail are listed with their
         // last position, and the others' last positions become their positions.
         let view = &mut self.view;
-        let per_chunk: Vec<(Vec<(u32, Vec3)>, u64)> = x
-            .par_chunks(CHUNK)
-            .zip(view.at.par_chunks(CHUNK))
-            .zip(view.limit2.par_chunks(CHUNK))
-            .zip(view.prev.par_chunks_mut(CHUNK))
-            .enumerate()
-            .with_min_len(SKIP_TASK_CHUNKS)
-            .map(|(chunk, (((xs, at), limit2), prevs))| {
-                // The blocks' failures first, so that the list is allocated once (a chunk
+        let groups = n.div_ceil(GROUP);
+        let mut per_group: Vec<(Vec<(u32, Vec3)>, u64)> = vec![(Vec::new(), 0); groups];
+        {
+            let (xs, prevs) = (Chunked::new(x, GROUP), Chunked::new(&mut view.prev, GROUP));
+            let out = Chunked::new(&mut per_group, 1);
+            let (at, limit2) = (&view.at, &view.limit2);
+            par.for_each_min(groups, SKIP_TASK_GROUPS, |g| {
+                // SAFETY: each group index once per loop.
+                let (xs, prevs, out) = unsafe { (xs.chunk(g), prevs.chunk(g), out.chunk(g)) };
+                let range = g * GROUP..g * GROUP + xs.len();
+                // The blocks' failures first, so that the list is allocated once (a group
                 // with none allocates nothing).
-                let mut masks = [0u64; CHUNK / BLOCK];
+                let mut masks = [0u64; GROUP / BLOCK];
                 for (mask, ((xs, at), limit2)) in masks.iter_mut().zip(
                     xs.chunks(BLOCK)
-                        .zip(at.chunks(BLOCK))
-                        .zip(limit2.chunks(BLOCK)),
+                        .zip(at[range.clone()].chunks(BLOCK))
+                        .zip(limit2[range].chunks(BLOCK)),
                 ) {
                     *mask = failures(xs, at, limit2);
                 }
                 let failing: u32 = masks.iter().map(|m| m.count_ones()).sum();
                 let mut listed = Vec::with_capacity(failing as usize);
-                for (block, (mut bits, prevs)) in
-                    masks.into_iter().zip(prevs.chunks(BLOCK)).enumerate()
+                for (block, ((mut bits, prevs), xs)) in masks
+                    .into_iter()
+                    .zip(prevs.chunks_mut(BLOCK))
+                    .zip(xs.chunks(BLOCK))
+                    .enumerate()
                 {
                     while bits != 0 {
                         let k = bits.trailing_zeros() as usize;
                         bits &= bits - 1;
-                        listed.push(((chunk * CHUNK + block * BLOCK + k) as u32, prevs[k]));
+                        listed.push(((g * GROUP + block * BLOCK + k) as u32, prevs[k]));
                     }
+                    // Block by block, while in cache (and below the size from which `memcpy`
+                    // switches to `rep movsb`, which callgrind counts byte by byte).
+                    prevs.copy_from_slice(xs);
                 }
-                prevs.copy_from_slice(xs);
                 let skipped = (xs.len() - listed.len()) as u64;
-                (listed, skipped)
-            })
-            .collect();
+                out[0] = (listed, skipped);
+            });
+        }
         let mut counters = Counters::default();
         // The failing vertices in the solver's order (`i` increasing), then grouped by the
         // caller's chunk that owns their state: a stable counting sort (no comparisons), each
@@ -153,8 +175,8 @@ impl SkinCollision {
         // in the solver's order: a resolution reads and writes only its own vertex's state
         // (the counters are sums), so the order changes nothing.
         let mut listed: Vec<(u32, u32, Vec3)> =
-            Vec::with_capacity(per_chunk.iter().map(|(l, _)| l.len()).sum());
-        for (l, skipped) in per_chunk {
+            Vec::with_capacity(per_group.iter().map(|(l, _)| l.len()).sum());
+        for (l, skipped) in per_group {
             counters.skipped_vertices += skipped;
             counters.skipped_bound += skipped * nc as u64;
             listed.extend(
@@ -177,27 +199,37 @@ impl SkinCollision {
             grouped[*at] = (j as u32, i, o, last);
             *at += 1;
         }
+        // The chunks with something to resolve, each resolved by one thread.
+        let busy: Vec<usize> = (0..chunks).filter(|&c| bounds[c + 1] > bounds[c]).collect();
         let ctx = Ctx {
             colliders: &self.colliders,
-            travel: &travel,
+            travel,
             travel_sum,
             config: &self.config,
             swept: true,
         };
         let xs = &*x;
-        let resolved: Vec<(Vec<Resolved>, Counters)> = self
-            .reach
-            .par_chunks_mut(CHUNK)
-            .zip(self.states.par_chunks_mut(CHUNK))
-            .zip(self.slots.par_chunks_mut(CHUNK * nc))
-            .zip(self.thickness.par_chunks(CHUNK))
-            .enumerate()
-            .with_min_len(if listed.len() < PARALLEL_RESOLUTIONS {
-                usize::MAX
-            } else {
-                1
-            })
-            .map(|(chunk, (((reach, states), slots), hs))| {
+        let mut resolved = vec![(Vec::new(), Counters::default()); busy.len()];
+        {
+            let (reach, states) = (
+                Chunked::new(&mut self.reach, CHUNK),
+                Chunked::new(&mut self.states, CHUNK),
+            );
+            let slots = Chunked::new(&mut self.slots, CHUNK * nc);
+            let out = Chunked::new(&mut resolved, 1);
+            let thickness = &self.thickness;
+            let resolve = |b: usize| {
+                let chunk = busy[b];
+                // SAFETY: each busy chunk once per loop (`busy` has no repeats).
+                let (reach, states, slots, out) = unsafe {
+                    (
+                        reach.chunk(chunk),
+                        states.chunk(chunk),
+                        slots.chunk(chunk),
+                        out.chunk(b),
+                    )
+                };
+                let hs = &thickness[chunk * CHUNK..];
                 let mut counters = Counters::default();
                 let done = grouped[bounds[chunk]..bounds[chunk + 1]]
                     .iter()
@@ -224,9 +256,14 @@ impl SkinCollision {
                         }
                     })
                     .collect();
-                (done, counters)
-            })
-            .collect();
+                out[0] = (done, counters);
+            };
+            if listed.len() < PARALLEL_RESOLUTIONS {
+                (0..busy.len()).for_each(resolve);
+            } else {
+                par.for_each(busy.len(), resolve);
+            }
+        }
 
         let mut pass = ChunkPass {
             counters,
@@ -256,7 +293,7 @@ impl SkinCollision {
         // Rare: a sort only when some vertex stayed unresolved.
         pass.unresolved.sort_unstable();
         let touching = touches.into_iter().flatten().collect();
-        Some((pass, touching))
+        (pass, touching)
     }
 
     /// Rebuilds the skip tests in the solver's order for the colliders' summed travel
@@ -294,10 +331,15 @@ impl SkinCollision {
     }
 }
 
-/// Chunks per task of the skip test: ~8k vertices (the test costs ~1 ns per vertex, less than
-/// handing a smaller task to another thread; session 7 measured a tube-10k frame's projections
-/// ~15 % faster with the skip test on one thread).
-const SKIP_TASK_CHUNKS: usize = 32;
+/// Vertices per work item of the skip test (a whole number of blocks).
+const GROUP: usize = 1024;
+const _: () = assert!(GROUP.is_multiple_of(BLOCK));
+
+/// Groups per task of the skip test on rayon's pool: ~8k vertices (the test costs ~1 ns per
+/// vertex, less than waking another thread for a smaller task; session 7 measured a tube-10k
+/// frame's projections ~15 % faster with the skip test on one thread). A solve's team claims
+/// groups one by one: its helpers are awake.
+const SKIP_TASK_GROUPS: usize = 8;
 
 /// Resolutions below which a pass resolves its failing vertices on one thread (~1 µs each:
 /// fewer are not worth a parallel loop, and they cluster in a few chunks anyway).

@@ -6,7 +6,7 @@ mod kernels;
 mod reorder;
 mod sell;
 mod simd;
-mod team;
+pub(crate) mod team;
 
 pub use reorder::morton_order;
 

@@ -6,8 +6,9 @@
 //! of microseconds: rayon's fork-join hands each loop to a worker that has often gone to sleep
 //! in between, and the futex round trip to wake it costs as much as the loop. A [`Team`]
 //! instead keeps its helpers for the whole solve: they wait for the next loop spinning (and
-//! running any other rayon job meanwhile, such as the projection's own parallel loops), and
-//! claim the loop's chunks from a shared counter.
+//! running any other rayon job meanwhile), and claim the loop's chunks from a shared counter.
+//! Code the solve calls on the leader's thread (its projection) finds the team through
+//! [`Par::current`] and runs its own parallel loops on it too.
 //!
 //! The results do not depend on who runs a chunk: each loop writes per-chunk outputs that are
 //! summed in chunk order afterwards, exactly as with rayon's iterators, so a solve is
@@ -15,6 +16,7 @@
 //! claims every chunk left over), only for the chunks a helper already claimed, so a team whose
 //! helpers are busy elsewhere (or a pool of one thread) still runs, on the leader alone.
 
+use std::cell::Cell;
 use std::hint::spin_loop;
 use std::marker::PhantomData;
 use std::sync::atomic::{AtomicBool, AtomicPtr, AtomicU64, AtomicUsize, Ordering};
@@ -33,10 +35,45 @@ pub(crate) enum Par<'a> {
 impl Par<'_> {
     /// Calls `f(c)` once for every chunk `c` in `0..n`, in parallel.
     pub fn for_each(self, n: usize, f: impl Fn(usize) + Sync) {
+        self.for_each_min(n, 1, f);
+    }
+
+    /// [`for_each`](Self::for_each), handing rayon's pool at least `min` chunks per task (a
+    /// team claims them one by one: its helpers are awake, so a small chunk costs no wake-up).
+    pub fn for_each_min(self, n: usize, min: usize, f: impl Fn(usize) + Sync) {
         match self {
-            Par::Pool => (0..n).into_par_iter().for_each(&f),
+            Par::Pool => (0..n).into_par_iter().with_min_len(min).for_each(&f),
             Par::Team(team) => team.run(n, &f),
         }
+    }
+
+    /// Runs `f` with the team of the solve this thread leads, outside that team's loops
+    /// ([`Par::Pool`] anywhere else): a solve's callbacks (its projection) run their parallel
+    /// loops on the solve's awake helpers instead of waking rayon's.
+    pub fn current<R>(f: impl FnOnce(Par<'_>) -> R) -> R {
+        let team = CURRENT.get();
+        if team.is_null() {
+            return f(Par::Pool);
+        }
+        // SAFETY: `CURRENT` names a team only while `Team::lead` runs the solve on this thread
+        // (it restores the previous value before the team is dropped, unwinding included), and
+        // never inside the team's own loops (`Team::run` clears it while it runs chunks).
+        #[expect(unsafe_code, reason = "the team outlives the solve that set it")]
+        f(Par::Team(unsafe { &*team }))
+    }
+}
+
+thread_local! {
+    /// The team whose solve this thread leads (null: none, or inside one of its loops).
+    static CURRENT: Cell<*const Team> = const { Cell::new(std::ptr::null()) };
+}
+
+/// Restores [`CURRENT`] to what it was when dropped.
+struct Restore(*const Team);
+
+impl Drop for Restore {
+    fn drop(&mut self) {
+        CURRENT.set(self.0);
     }
 }
 
@@ -86,6 +123,9 @@ impl Team {
         // The leader takes chunks from the front, the helpers from the back, so each thread
         // mostly keeps the same vertices (in its own cache) from one loop to the next.
         self.state.store((n as u64) << 32, Ordering::Release);
+        // A chunk that asks for the current team runs its loops on rayon's pool: the team
+        // runs one loop at a time.
+        let _restore = Restore(CURRENT.replace(std::ptr::null()));
         let mut mine = 0;
         let mut s = self.state.load(Ordering::Relaxed);
         while (s & LOW) < (s >> 32) {
@@ -178,6 +218,7 @@ impl Team {
                 s.spawn(|_| team.help());
             }
             let _finish = Finish(&team);
+            let _restore = Restore(CURRENT.replace(&raw const team));
             solve(&team)
         })
     }
@@ -309,6 +350,53 @@ mod tests {
             }))
         });
         assert!(caught.is_err());
+    }
+
+    /// The team `Par::current` hands out: `Some(address)` or `None` for rayon's pool.
+    fn current_team() -> Option<usize> {
+        Par::current(|par| match par {
+            Par::Pool => None,
+            Par::Team(team) => Some(std::ptr::from_ref(team) as usize),
+        })
+    }
+
+    #[test]
+    fn the_current_team_is_the_solve_s_own_and_only_outside_its_loops() {
+        pool(2).install(|| {
+            assert_eq!(current_team(), None);
+            Team::lead(usize::MAX, |team| {
+                let me = Some(std::ptr::from_ref(team) as usize);
+                assert_eq!(current_team(), me);
+                // Inside the team's own loop (leader or helper) a chunk gets rayon's pool: a
+                // nested loop on the team would corrupt the running one.
+                let inside: Vec<AtomicUsize> = (0..8).map(|_| AtomicUsize::new(1)).collect();
+                Par::Team(team).for_each(8, |c| {
+                    inside[c].store(usize::from(current_team().is_some()), Ordering::Relaxed);
+                });
+                assert!(inside.iter().all(|v| v.load(Ordering::Relaxed) == 0));
+                assert_eq!(current_team(), me);
+                // A solve led inside this one has its own team, and this one's comes back.
+                Team::lead(usize::MAX, |inner| {
+                    assert_eq!(current_team(), Some(std::ptr::from_ref(inner) as usize));
+                });
+                assert_eq!(current_team(), me);
+                // The current team runs loops like the solve's own.
+                let hits: Vec<AtomicUsize> = (0..16).map(|_| AtomicUsize::new(0)).collect();
+                Par::current(|par| {
+                    par.for_each_min(16, 4, |c| {
+                        hits[c].fetch_add(1, Ordering::Relaxed);
+                    })
+                });
+                assert!(hits.iter().all(|h| h.load(Ordering::Relaxed) == 1));
+            });
+            assert_eq!(current_team(), None);
+            // Unwinding out of a solve restores it too.
+            let caught = std::panic::catch_unwind(|| {
+                Team::lead(usize::MAX, |_| panic!("a bug in a solve"));
+            });
+            assert!(caught.is_err());
+            assert_eq!(current_team(), None);
+        });
     }
 
     #[test]
