@@ -486,6 +486,37 @@ pub fn predict_from_motion(
         });
 }
 
+/// A skin collision that trusts a solver order (see `SkinCollision::trust_order`) until it is
+/// dropped, however the frame ends.
+struct TrustedOrder<'a>(&'a mut SkinCollision);
+
+impl<'a> TrustedOrder<'a> {
+    /// `collision` trusting `order`, which the caller keeps borrowed while this lives.
+    fn new(collision: &'a mut SkinCollision, order: &'a [u32]) -> Self {
+        collision.trust_order(order);
+        Self(collision)
+    }
+}
+
+impl std::ops::Deref for TrustedOrder<'_> {
+    type Target = SkinCollision;
+    fn deref(&self) -> &SkinCollision {
+        self.0
+    }
+}
+
+impl std::ops::DerefMut for TrustedOrder<'_> {
+    fn deref_mut(&mut self) -> &mut SkinCollision {
+        self.0
+    }
+}
+
+impl Drop for TrustedOrder<'_> {
+    fn drop(&mut self) {
+        self.0.distrust_order();
+    }
+}
+
 /// Relaxes one frame of `system` in contact: `collision`'s last frame's pass state forgotten
 /// ([`SkinCollision::clear_frame_state`]; its query cache carries over), the frame plan
 /// ([`SkinCollision::begin_frame`]), and per substep a contact pass
@@ -503,6 +534,9 @@ pub fn relax_frame(
 ) -> Result<FrameRelax, FrameError> {
     // One job on the rayon pool for the whole frame (see `SpringSystem::relax_projected`).
     rayon::scope(|_| {
+        // `system` is borrowed for the whole frame, so its order cannot change: the
+        // projections need not compare it pass by pass.
+        let mut collision = TrustedOrder::new(collision, system.order());
         let t = Instant::now();
         collision.clear_frame_state();
         let plan = collision.begin_frame(x)?;
@@ -534,7 +568,7 @@ pub fn relax_frame(
                 max_iterations,
                 ..*config
             };
-            let mut timed = Timed::new(collision);
+            let mut timed = Timed::new(&mut *collision);
             let report = system.relax_projected(x, loads, &sub_config, Some(&mut timed))?;
             projection_time += Duration::from_secs_f64(timed.seconds);
             iterations += report.iterations;

@@ -1352,3 +1352,45 @@ fn reaching_bisection_evaluates_the_path_only_at_the_kept_times() {
         }
     }
 }
+
+#[test]
+fn a_trusted_order_is_compared_again_once_another_order_was_used() {
+    // The frame loop vouches for its solver's order, and projections given that very slice
+    // skip comparing it. Once a projection adopts another order, the trusted slice must be
+    // compared (and adopted) again, or its vertices would take the other order's states: here
+    // their thicknesses, 1 cm for caller's vertex 0 and 5 cm for the others.
+    let thickness = [0.01, 0.05, 0.05];
+    let mut skin = SkinCollision::new(3, ONE_CM).unwrap();
+    skin.add_collider(ColliderMesh::ball(1.0).unwrap());
+    skin.set_thickness(&thickness).unwrap();
+    // Every vertex inside the ball, on its own axis.
+    let caller = [Vec3::Z * 0.5, Vec3::X * 0.5, Vec3::Y * 0.5];
+    let trusted: Vec<u32> = vec![2, 0, 1];
+    let other: Vec<u32> = vec![1, 2, 0];
+    let in_order = |order: &[u32]| {
+        order
+            .iter()
+            .map(|&o| caller[o as usize])
+            .collect::<Vec<_>>()
+    };
+    let pushed_to = |x: &[Vec3], order: &[u32]| {
+        for (p, &o) in x.iter().zip(order) {
+            let want = 1.0 + thickness[o as usize];
+            assert!(
+                (p.length() - want).abs() < 1e-5,
+                "caller's {o} at {p}, not {want}"
+            );
+        }
+    };
+    skin.trust_order(&trusted);
+    for order in [&trusted, &other, &trusted] {
+        let mut x = in_order(order);
+        assert!(skin.project(&mut x, order));
+        pushed_to(&x, order);
+        // A pass that finds them on the surface leaves them there.
+        assert!(!skin.project(&mut x, order));
+        pushed_to(&x, order);
+    }
+    skin.distrust_order();
+    assert_eq!(skin.trusted_order, None);
+}
