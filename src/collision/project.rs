@@ -337,8 +337,8 @@ const _: () = assert!(GROUP.is_multiple_of(BLOCK));
 
 /// Groups per task of the skip test on rayon's pool: ~8k vertices (the test costs ~1 ns per
 /// vertex, less than waking another thread for a smaller task; session 7 measured a tube-10k
-/// frame's projections ~15 % faster with the skip test on one thread). A solve's team claims
-/// groups one by one: its helpers are awake.
+/// frame's projections ~15 % faster with the skip test on one thread). A solve's team ignores
+/// it: its helpers are awake.
 const SKIP_TASK_GROUPS: usize = 8;
 
 /// Resolutions below which a pass resolves its failing vertices on one thread (~1 µs each:

@@ -40,7 +40,7 @@ impl Par<'_> {
     }
 
     /// [`for_each`](Self::for_each), handing rayon's pool at least `min` chunks per task (a
-    /// team claims them one by one: its helpers are awake, so a small chunk costs no wake-up).
+    /// team ignores `min`: its helpers are awake, so a small chunk costs no wake-up).
     pub fn for_each_min(self, n: usize, min: usize, f: impl Fn(usize) + Sync) {
         match self {
             Par::Pool => (0..n).into_par_iter().with_min_len(min).for_each(&f),
