@@ -27,7 +27,9 @@ print(
     f"passes {t['collision_passes_us_per_vertex']:.3f} "
     f"projections {t['collision_projections_us_per_vertex']:.3f}) "
     f"clearance {t['min_clearance_m']:.5f} unresolved {t['unresolved_max']} | "
-    f"tube-100k median {h['frame_ms_median']:.1f} its {h['iterations_per_frame_mean']:.1f} | "
+    f"tube-100k median {h['frame_ms_median']:.1f} its {h['iterations_per_frame_mean']:.1f} "
+    f"coll {h['collision_us_per_vertex']:.3f} (projections "
+    f"{h['collision_projections_us_per_vertex']:.3f}) | "
     f"frames 13-22 median {statistics.median(t['frame_ms'][:10]):.2f}"
 )
 PY
