@@ -16,10 +16,18 @@
 //! bit-identical for any number of threads. The leader never waits for a helper to arrive (it
 //! claims every chunk left over), only for the chunks a helper already claimed, so a team whose
 //! helpers are busy elsewhere (or a pool of one thread) still runs, on the leader alone.
+//!
+//! A chunk that panics, on either side, is rethrown by the leader once every claimed chunk of
+//! its loop is done (as a panic in a rayon loop reaches its caller): unwinding out of a helper
+//! would leave the leader waiting for its chunks forever, and the leader unwinding at once would
+//! free the loop's body while a helper still runs it.
 
+use std::any::Any;
 use std::cell::Cell;
 use std::hint::spin_loop;
 use std::marker::PhantomData;
+use std::panic::{AssertUnwindSafe, catch_unwind, resume_unwind};
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicPtr, AtomicU64, AtomicUsize, Ordering};
 
 use rayon::prelude::*;
@@ -95,6 +103,8 @@ pub(crate) struct Team {
     /// The current loop's [`Job`] (valid while any of its chunks is unclaimed or running).
     job: AtomicPtr<Job<'static>>,
     finished: AtomicBool,
+    /// The first panic of a chunk a helper ran, rethrown by the leader once the loop is done.
+    panic: Mutex<Option<Box<dyn Any + Send>>>,
 }
 
 const LOW: u64 = 0xffff_ffff;
@@ -114,6 +124,7 @@ impl Team {
             done: AtomicUsize::new(0),
             job: AtomicPtr::new(std::ptr::null_mut()),
             finished: AtomicBool::new(false),
+            panic: Mutex::new(None),
         }
     }
 
@@ -136,6 +147,10 @@ impl Team {
         // runs one loop at a time.
         let _restore = Restore(CURRENT.replace(std::ptr::null()));
         let mut mine = 0;
+        // A chunk that panics does not end the loop at once: the helpers may still be running
+        // chunks of it, through `job`. The rest of the loop is claimed (and skipped), the
+        // helpers' chunks awaited, and the first panic rethrown then.
+        let mut panic = None;
         let mut s = self.state.load(Ordering::Relaxed);
         while (s & LOW) < (s >> 32) {
             let (front, back) = (s & LOW, s >> 32);
@@ -146,7 +161,9 @@ impl Team {
             {
                 Ok(_) => {
                     for c in front..front + k {
-                        f(c as usize);
+                        if panic.is_none() {
+                            panic = catch_unwind(AssertUnwindSafe(|| f(c as usize))).err();
+                        }
                     }
                     mine += k as usize;
                     s = self.state.load(Ordering::Relaxed);
@@ -163,6 +180,10 @@ impl Team {
             } else {
                 std::thread::yield_now();
             }
+        }
+        let helpers = self.panic.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if let Some(payload) = panic.or(helpers) {
+            resume_unwind(payload);
         }
     }
 
@@ -197,7 +218,14 @@ impl Team {
                 // above).
                 let job = unsafe { &*self.job.load(Ordering::Relaxed) };
                 for c in back - k..back {
-                    (job.f)(c as usize);
+                    // A panic is handed to the leader (see `run`): unwinding out of here would
+                    // leave the leader waiting for these chunks forever.
+                    if let Err(payload) = catch_unwind(AssertUnwindSafe(|| (job.f)(c as usize))) {
+                        self.panic
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner())
+                            .get_or_insert(payload);
+                    }
                 }
                 self.done.fetch_add(k as usize, Ordering::Release);
                 idle = 0;
@@ -414,6 +442,38 @@ mod tests {
             assert!(caught.is_err());
             assert_eq!(current_team(), None);
         });
+    }
+
+    #[test]
+    fn a_panicking_chunk_propagates_once_its_loop_is_done_on_either_thread() {
+        // A chunk panicking on a helper must reach the leader (unwinding out of the helper
+        // would leave the leader waiting for it forever), and one panicking on the leader must
+        // wait for the helper's chunks, which still run through the leader's loop body.
+        for helper_panics in [false, true] {
+            let (tx, rx) = std::sync::mpsc::channel();
+            std::thread::spawn(move || {
+                let caught = pool(2).install(|| {
+                    std::panic::catch_unwind(|| {
+                        Team::lead(usize::MAX, |team| {
+                            let leader = std::thread::current().id();
+                            for _ in 0..50 {
+                                Par::Team(team).for_each(64, |c| {
+                                    // Slow chunks: the helper takes part in every loop.
+                                    std::thread::sleep(std::time::Duration::from_micros(50));
+                                    let on_leader = std::thread::current().id() == leader;
+                                    if on_leader != helper_panics && c % 7 == 3 {
+                                        panic!("chunk {c}");
+                                    }
+                                });
+                            }
+                        });
+                    })
+                });
+                let _ = tx.send(caught.is_err());
+            });
+            let panicked = rx.recv_timeout(std::time::Duration::from_secs(30));
+            assert_eq!(panicked, Ok(true), "helper panics: {helper_panics}");
+        }
     }
 
     #[test]
