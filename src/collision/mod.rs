@@ -1148,14 +1148,21 @@ impl SkinCollision {
     /// comparing it. The caller must keep `order` borrowed, unchanged, until then (see
     /// [`relax_frame`]).
     pub(crate) fn trust_order(&mut self, order: &[u32]) {
-        if self.rank_of != order {
-            self.leave_view();
-            if !self.rank_for(order) {
-                // Not a permutation: every projection will say so.
-                return;
-            }
+        // Not a permutation: no trust, and every projection will say so.
+        if self.adopt_order(order) {
+            self.trusted_order = Some((order.as_ptr() as usize, order.len()));
         }
-        self.trusted_order = Some((order.as_ptr() as usize, order.len()));
+    }
+
+    /// Makes `order` the solver's order unless it already is; `false` when it is not a
+    /// permutation of the vertices.
+    fn adopt_order(&mut self, order: &[u32]) -> bool {
+        if self.rank_of == order {
+            return true;
+        }
+        // The last positions held in the old order go back to the caller's order first.
+        self.leave_view();
+        self.rank_for(order)
     }
 
     /// Ends [`trust_order`](Self::trust_order).
@@ -1194,13 +1201,9 @@ impl Projection for SkinCollision {
         // One comparison of the order per pass (an O(n) read; the solver's order rarely
         // changes), unless the frame loop vouches for it.
         let trusted = self.trusted_order == Some((order.as_ptr() as usize, order.len()));
-        if !trusted && self.rank_of != order {
-            // The last positions held in the old order go back to the caller's order first.
-            self.leave_view();
-            if !self.rank_for(order) {
-                self.diagnostics.length_mismatch = true;
-                return false;
-            }
+        if !trusted && !self.adopt_order(order) {
+            self.diagnostics.length_mismatch = true;
+            return false;
         }
         // The touching vertices come in the solver's order; each with its contacts in
         // resolution order below.

@@ -105,6 +105,8 @@ pub(crate) struct Team {
     finished: AtomicBool,
     /// The first panic of a chunk a helper ran, rethrown by the leader once the loop is done.
     panic: Mutex<Option<Box<dyn Any + Send>>>,
+    /// Whether `panic` holds one (so the leader locks it only then, not after every loop).
+    panicked: AtomicBool,
 }
 
 const LOW: u64 = 0xffff_ffff;
@@ -125,6 +127,7 @@ impl Team {
             job: AtomicPtr::new(std::ptr::null_mut()),
             finished: AtomicBool::new(false),
             panic: Mutex::new(None),
+            panicked: AtomicBool::new(false),
         }
     }
 
@@ -181,8 +184,11 @@ impl Team {
                 std::thread::yield_now();
             }
         }
-        let helpers = self.panic.lock().unwrap_or_else(|e| e.into_inner()).take();
-        if let Some(payload) = panic.or(helpers) {
+        // The acquire of `done` above sees a helper's flag set before its `done` release.
+        if panic.is_none() && self.panicked.swap(false, Ordering::Relaxed) {
+            panic = self.panic.lock().unwrap_or_else(|e| e.into_inner()).take();
+        }
+        if let Some(payload) = panic {
             resume_unwind(payload);
         }
     }
@@ -225,6 +231,7 @@ impl Team {
                             .lock()
                             .unwrap_or_else(|e| e.into_inner())
                             .get_or_insert(payload);
+                        self.panicked.store(true, Ordering::Relaxed);
                     }
                 }
                 self.done.fetch_add(k as usize, Ordering::Release);
