@@ -810,21 +810,24 @@ pub(crate) enum Isa {
     /// AVX2 (x86-64 only, detected at run time).
     Avx2,
     /// AVX2 for the f32 half (with the 32 registers of AVX-512VL), AVX-512F for the f64 half
-    /// (x86-64 only, detected at run time).
+    /// (x86-64 only, detected at run time). Only on request (`DERMIS_SIMD=avx512`): fewer
+    /// instructions, but slower than [`Isa::Avx2`] on the Sapphire-Rapids-class machine it was
+    /// measured on (session 13: `relax_probe` 0.91-0.93x at 10k, 0.95-0.97x at 100k).
     Avx512,
 }
 
 impl Isa {
-    /// The fastest available for `n` vertices (gather offsets must fit in i32), capped by the
-    /// environment variable `DERMIS_SIMD` (`scalar`, `avx2` or `avx512`; for measurements:
-    /// every path gives the same bits).
+    /// The path for `n` vertices (gather offsets must fit in i32): AVX2 where the CPU has it,
+    /// else the portable one. The environment variable `DERMIS_SIMD` (`scalar`, `avx2` or
+    /// `avx512`) picks another, falling back to the best the CPU has below it (for
+    /// measurements: every path gives the same bits).
     pub fn detect(n: usize) -> Self {
         static BEST: std::sync::OnceLock<Isa> = std::sync::OnceLock::new();
         let best = *BEST.get_or_init(|| {
             let cap = match std::env::var("DERMIS_SIMD").ok().as_deref() {
                 Some("scalar") => Isa::Scalar,
-                Some("avx2") => Isa::Avx2,
-                _ => Isa::Avx512,
+                Some("avx512") => Isa::Avx512,
+                _ => Isa::Avx2,
             };
             Isa::available(0)
                 .into_iter()
