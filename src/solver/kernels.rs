@@ -11,9 +11,8 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::VertexAnchor;
 use super::sell::{LANES, Sell};
-use super::simd::{self, ForceInputs, Isa};
+use super::simd::{self, ForceInputs, Isa, SlicedAnchors};
 use super::team::{Chunked, Par};
 
 /// Vertices per parallel chunk; fixed so reductions do not depend on the thread count.
@@ -26,7 +25,7 @@ pub(crate) struct Frame<'a> {
     pub spring_diagonal: &'a [f32],
     pub isa: Isa,
     pub external: Option<&'a [Vec3]>,
-    pub anchors: Option<&'a [VertexAnchor]>,
+    pub anchors: Option<&'a SlicedAnchors>,
     /// Where the parallel loops run.
     pub par: Par<'a>,
 }
@@ -157,7 +156,8 @@ impl Frame<'_> {
                 } else {
                     let mut diag = springs;
                     if let Some(a) = self.anchors {
-                        diag += a[i].k_normal.max(a[i].k_tangent);
+                        let a = a.get(i);
+                        diag += a.k_normal.max(a.k_tangent);
                     }
                     if diag > 0.0 { 1.0 / diag } else { 0.0 }
                 };

@@ -19,6 +19,7 @@ use crate::mesh::TriMesh;
 use contact::ContactSet;
 use kernels::{Frame, Sums, advance, dot, step_and_update_direction, update_direction};
 use sell::Sell;
+use simd::SlicedAnchors;
 use team::{Par, Team};
 
 /// Iterations at the start of a projected solve in which a newly held contact restarts the
@@ -453,7 +454,7 @@ impl SpringSystem {
     fn frame<'a>(
         &'a self,
         external: Option<&'a [Vec3]>,
-        anchors: Option<&'a [VertexAnchor]>,
+        anchors: Option<&'a SlicedAnchors>,
         par: Par<'a>,
     ) -> Frame<'a> {
         Frame {
@@ -568,8 +569,8 @@ impl SpringSystem {
             Some(p) => self.to_internal(p),
             None => vec![false; n],
         };
-        let anchors = loads.anchors.map(|a| self.to_internal(a));
-        let frame = self.frame(external.as_deref(), anchors.as_deref(), par);
+        let anchors = loads.anchors.map(|a| SlicedAnchors::new(a, &self.order));
+        let frame = self.frame(external.as_deref(), anchors.as_ref(), par);
         let mut xi = self.to_internal(x);
 
         // The inverse diagonal carries the pin flags (as its sign).

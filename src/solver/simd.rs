@@ -12,7 +12,9 @@
               gathered index is below the vertex count, asserted per chunk"
 )]
 
-use std::mem::{offset_of, size_of};
+use std::mem::size_of;
+
+use rayon::prelude::*;
 
 use glam::Vec3;
 
@@ -61,12 +63,6 @@ pub(crate) trait Lanes: Copy {
     /// Eight per-vertex values spread over the 24 floats of eight `Vec3` (each value three
     /// times in a row, in the layout [`load_at`](Self::load_at) reads them).
     fn spread3(self, w: Self::F) -> [Self::F; 3];
-    /// Eight consecutive rows of eight floats at `p`, transposed: lane `l` of entry `c` is
-    /// `p[8 l + c]`.
-    ///
-    /// # Safety
-    /// 64 floats from `p` must be readable.
-    unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8];
     /// `v[i]` per lane as x, y and z lanes, for `v` the `n` vectors at `p`, `i` the indices
     /// `j` and `rows` the same indices as float offsets.
     ///
@@ -142,8 +138,6 @@ pub(crate) trait Lanes: Copy {
     fn dfrom(self, a: [f64; 8]) -> Self::D;
     /// `3 i` per lane.
     fn times3(self, i: Self::I) -> Self::I;
-    /// `8 i` per lane.
-    fn times8(self, i: Self::I) -> Self::I;
     fn add(self, a: Self::F, b: Self::F) -> Self::F;
     fn sub(self, a: Self::F, b: Self::F) -> Self::F;
     fn mul(self, a: Self::F, b: Self::F) -> Self::F;
@@ -206,11 +200,6 @@ impl Lanes for Scalar {
     unsafe fn load3(self, p: *const f32) -> [Self::F; 3] {
         // SAFETY: the caller guarantees 24 readable floats.
         std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(3 * l + c) }))
-    }
-    #[inline(always)]
-    unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
-        // SAFETY: the caller guarantees 64 readable floats.
-        std::array::from_fn(|c| std::array::from_fn(|l| unsafe { *p.add(8 * l + c) }))
     }
     #[inline(always)]
     unsafe fn load_at(self, p: *const f32) -> Self::F {
@@ -276,10 +265,6 @@ impl Lanes for Scalar {
     #[inline(always)]
     fn times3(self, i: Self::I) -> Self::I {
         i.map(|i| i.wrapping_mul(3))
-    }
-    #[inline(always)]
-    fn times8(self, i: Self::I) -> Self::I {
-        i.map(|i| i.wrapping_mul(8))
     }
     #[inline(always)]
     fn add(self, a: Self::F, b: Self::F) -> Self::F {
@@ -477,39 +462,6 @@ mod avx2 {
             }
         }
         #[inline(always)]
-        unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
-            // SAFETY: the caller guarantees 64 readable floats. The usual 8x8 transpose.
-            unsafe {
-                let r: [__m256; 8] = std::array::from_fn(|l| _mm256_loadu_ps(p.add(8 * l)));
-                let t0 = _mm256_unpacklo_ps(r[0], r[1]);
-                let t1 = _mm256_unpackhi_ps(r[0], r[1]);
-                let t2 = _mm256_unpacklo_ps(r[2], r[3]);
-                let t3 = _mm256_unpackhi_ps(r[2], r[3]);
-                let t4 = _mm256_unpacklo_ps(r[4], r[5]);
-                let t5 = _mm256_unpackhi_ps(r[4], r[5]);
-                let t6 = _mm256_unpacklo_ps(r[6], r[7]);
-                let t7 = _mm256_unpackhi_ps(r[6], r[7]);
-                let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
-                let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
-                let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
-                let u3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
-                let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
-                let u5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
-                let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
-                let u7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
-                [
-                    _mm256_permute2f128_ps::<0x20>(u0, u4),
-                    _mm256_permute2f128_ps::<0x20>(u1, u5),
-                    _mm256_permute2f128_ps::<0x20>(u2, u6),
-                    _mm256_permute2f128_ps::<0x20>(u3, u7),
-                    _mm256_permute2f128_ps::<0x31>(u0, u4),
-                    _mm256_permute2f128_ps::<0x31>(u1, u5),
-                    _mm256_permute2f128_ps::<0x31>(u2, u6),
-                    _mm256_permute2f128_ps::<0x31>(u3, u7),
-                ]
-            }
-        }
-        #[inline(always)]
         unsafe fn vec3s(
             self,
             p: *const f32,
@@ -695,10 +647,6 @@ mod avx2 {
             unsafe { _mm256_add_epi32(i, _mm256_add_epi32(i, i)) }
         }
         #[inline(always)]
-        fn times8(self, i: Self::I) -> Self::I {
-            unsafe { _mm256_slli_epi32::<3>(i) }
-        }
-        #[inline(always)]
         fn add(self, a: Self::F, b: Self::F) -> Self::F {
             unsafe { _mm256_add_ps(a, b) }
         }
@@ -854,12 +802,89 @@ impl Isa {
     }
 }
 
-// Gathers index anchors as eight floats and positions as three.
-const _: () = assert!(size_of::<VertexAnchor>() == 32 && size_of::<Vec3>() == 12);
-const TARGET: usize = offset_of!(VertexAnchor, target) / 4;
-const NORMAL: usize = offset_of!(VertexAnchor, normal) / 4;
-const K_NORMAL: usize = offset_of!(VertexAnchor, k_normal) / 4;
-const K_TANGENT: usize = offset_of!(VertexAnchor, k_tangent) / 4;
+// Gathers index positions as three floats.
+const _: () = assert!(size_of::<Vec3>() == 12);
+// The eight floats of an anchor, in the rows of a slice of [`SlicedAnchors`].
+const TARGET: usize = 0;
+const NORMAL: usize = 3;
+const K_NORMAL: usize = 6;
+const K_TANGENT: usize = 7;
+/// Floats per anchor, and rows per slice of [`SlicedAnchors`].
+const ANCHOR_FLOATS: usize = 8;
+
+/// A solve's anchors in internal order, laid out for the kernels' lanes: per slice of eight
+/// vertices, each of an anchor's eight floats (target, normal, `k_normal`, `k_tangent`) for
+/// the eight lanes in turn, the last slice padded with zero anchors. The force and curvature
+/// gathers read a slice's anchors with eight plain loads, where eight [`VertexAnchor`]s in a
+/// row would take a transpose (24 shuffles) per slice and gather: 3-4 % of a relaxation
+/// iteration at tube-10k and tube-100k (session 13). Built once per solve, in the pass that
+/// puts the anchors in internal order anyway.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct SlicedAnchors {
+    floats: Vec<f32>,
+    n: usize,
+}
+
+impl SlicedAnchors {
+    /// The anchors of internal vertex `i` at `anchors[order[i]]` (`order` a permutation of
+    /// `anchors`' indices).
+    pub fn new(anchors: &[VertexAnchor], order: &[u32]) -> Self {
+        let n = order.len();
+        let mut floats = vec![0.0f32; n.div_ceil(LANES) * LANES * ANCHOR_FLOATS];
+        floats
+            .par_chunks_mut(LANES * ANCHOR_FLOATS)
+            .zip(order.par_chunks(LANES))
+            .for_each(|(rows, order)| {
+                for (lane, &o) in order.iter().enumerate() {
+                    let a = &anchors[o as usize];
+                    let values = [
+                        (TARGET, a.target.x),
+                        (TARGET + 1, a.target.y),
+                        (TARGET + 2, a.target.z),
+                        (NORMAL, a.normal.x),
+                        (NORMAL + 1, a.normal.y),
+                        (NORMAL + 2, a.normal.z),
+                        (K_NORMAL, a.k_normal),
+                        (K_TANGENT, a.k_tangent),
+                    ];
+                    for (row, v) in values {
+                        rows[row * LANES + lane] = v;
+                    }
+                }
+            });
+        Self { floats, n }
+    }
+
+    /// Vertices.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// The anchor of internal vertex `i < len()`.
+    pub fn get(&self, i: usize) -> VertexAnchor {
+        let rows = &self.floats[(i / LANES) * LANES * ANCHOR_FLOATS..][..LANES * ANCHOR_FLOATS];
+        let at = |row: usize| rows[row * LANES + i % LANES];
+        VertexAnchor {
+            target: Vec3::new(at(TARGET), at(TARGET + 1), at(TARGET + 2)),
+            normal: Vec3::new(at(NORMAL), at(NORMAL + 1), at(NORMAL + 2)),
+            k_normal: at(K_NORMAL),
+            k_tangent: at(K_TANGENT),
+        }
+    }
+
+    /// The eight rows of slice `s` (lane `l` of row `c`: float `c` of vertex `8 s + l`'s
+    /// anchor; zero past the last vertex).
+    ///
+    /// # Safety
+    /// `s` below the slice count of `len()` vertices.
+    #[inline(always)]
+    unsafe fn rows<S: Lanes>(&self, l: S, s: usize) -> [S::F; ANCHOR_FLOATS] {
+        debug_assert!(s < self.n.div_ceil(LANES));
+        let p = self.floats.as_ptr();
+        // SAFETY: 64 floats per slice, `s` a slice (the caller's contract).
+        std::array::from_fn(|row| unsafe { l.load_at(p.add((s * ANCHOR_FLOATS + row) * LANES)) })
+    }
+}
 
 /// Inputs of a force gather, in internal order (all of length `sell.n`).
 pub(crate) struct ForceInputs<'a> {
@@ -868,7 +893,7 @@ pub(crate) struct ForceInputs<'a> {
     /// `Some((d, a))`: the forces are taken at `x + a d` (computed on the fly, the same f32
     /// operations as [`advance`]).
     pub step: Option<(&'a [Vec3], f32)>,
-    pub anchors: Option<&'a [VertexAnchor]>,
+    pub anchors: Option<&'a SlicedAnchors>,
     pub external: Option<&'a [Vec3]>,
     /// The preconditioner weights (inverse diagonal) for the dot products; a negative weight
     /// (`-0.0`) marks a pinned vertex, whose force is zeroed. `None`: no pins, no dot products.
@@ -1201,19 +1226,8 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         energy = l.dadd(energy, term);
     }
     if let Some(a) = f.anchors {
-        let ap = a.as_ptr().cast::<f32>();
-        let rows = if (s + 1) * LANES <= sell.n {
-            // SAFETY: a full slice reads anchors 8s..8s + 8.
-            unsafe { l.load8x8(ap.add(8 * LANES * s)) }
-        } else {
-            let ia = l.times8(own);
-            let mut rows = [zero; 8];
-            for (o, row) in rows.iter_mut().enumerate() {
-                // SAFETY: anchors of n entries, indices below n.
-                *row = unsafe { l.gather(ap.add(o), ia) };
-            }
-            rows
-        };
+        // SAFETY: `s` is a slice of the n vertices the anchors have (the caller's contract).
+        let rows = unsafe { a.rows(l, s) };
         let (tx, ty, tz) = (rows[TARGET], rows[TARGET + 1], rows[TARGET + 2]);
         let (nx, ny, nz) = (rows[NORMAL], rows[NORMAL + 1], rows[NORMAL + 2]);
         let (kn, kt) = (rows[K_NORMAL], rows[K_TANGENT]);
@@ -1550,7 +1564,7 @@ fn curvature_chunk<S: Lanes>(
     sell: &Sell,
     x: &[Vec3],
     d: &[Vec3],
-    anchors: Option<&[VertexAnchor]>,
+    anchors: Option<&SlicedAnchors>,
     slices: std::ops::Range<usize>,
 ) -> f64 {
     let n = sell.n;
@@ -1621,9 +1635,8 @@ fn curvature_chunk<S: Lanes>(
         }
         if let Some(a) = anchors {
             let term = if valid {
-                let ap = a.as_ptr().cast::<f32>();
-                // SAFETY: a full slice reads anchors 8s..8s + 8.
-                let rows = unsafe { l.load8x8(ap.add(8 * LANES * s)) };
+                // SAFETY: `s` is a slice of the n vertices the anchors have (asserted).
+                let rows = unsafe { a.rows(l, s) };
                 let (nx, ny, nz) = (rows[NORMAL], rows[NORMAL + 1], rows[NORMAL + 2]);
                 let (kn, kt) = (rows[K_NORMAL], rows[K_TANGENT]);
                 let un = l.add(l.add(l.mul(dx, nx), l.mul(dy, ny)), l.mul(dz, nz));
@@ -1638,7 +1651,7 @@ fn curvature_chunk<S: Lanes>(
                 l.dfrom(std::array::from_fn(|lane| {
                     let i = s * LANES + lane;
                     if i < n {
-                        a[i].curvature(d[i]) as f64
+                        a.get(i).curvature(d[i]) as f64
                     } else {
                         0.0
                     }
@@ -1656,7 +1669,7 @@ fn curvature_chunk_avx2(
     sell: &Sell,
     x: &[Vec3],
     d: &[Vec3],
-    anchors: Option<&[VertexAnchor]>,
+    anchors: Option<&SlicedAnchors>,
     slices: std::ops::Range<usize>,
 ) -> f64 {
     curvature_chunk(avx2::Avx2, sell, x, d, anchors, slices)
@@ -1668,7 +1681,7 @@ fn curvature_chunk_avx512(
     sell: &Sell,
     x: &[Vec3],
     d: &[Vec3],
-    anchors: Option<&[VertexAnchor]>,
+    anchors: Option<&SlicedAnchors>,
     slices: std::ops::Range<usize>,
 ) -> f64 {
     curvature_chunk(avx512::Avx512, sell, x, d, anchors, slices)
@@ -1682,7 +1695,7 @@ pub(crate) fn curvature(
     sell: &Sell,
     x: &[Vec3],
     d: &[Vec3],
-    anchors: Option<&[VertexAnchor]>,
+    anchors: Option<&SlicedAnchors>,
     slices: std::ops::Range<usize>,
 ) -> f64 {
     match isa {
@@ -1855,6 +1868,7 @@ mod tests {
             system.to_internal(&ext),
             system.to_internal(&pinned),
         );
+        let sliced = SlicedAnchors::new(&anchors, &system.order);
         let w = weights(&pi);
         // The gather at `x` and the gather at `x0 + a d` with `x0 + a d == x` (computed the
         // plain way) must both reproduce the reference at `x`.
@@ -1876,7 +1890,7 @@ mod tests {
                     sell,
                     x,
                     step,
-                    anchors: Some(&ai),
+                    anchors: Some(&sliced),
                     external: Some(&ei),
                     w: Some(&w),
                 };
@@ -2050,11 +2064,44 @@ mod tests {
     }
 
     #[test]
+    fn sliced_anchors_hold_each_vertex_s_anchor_in_internal_order_and_zeros_past_the_end() {
+        let (system, _, anchors, _, _) = net();
+        let n = system.sell.n;
+        assert!(n % LANES != 0, "the test wants a partial last slice");
+        let sliced = SlicedAnchors::new(&anchors, &system.order);
+        assert_eq!(sliced.len(), n);
+        for (i, &o) in system.order.iter().enumerate() {
+            assert_eq!(sliced.get(i), anchors[o as usize], "internal vertex {i}");
+        }
+        // The lanes the kernels read: each row's value is the anchor's field, and the lanes
+        // past the last vertex hold zero anchors.
+        let s = n / LANES;
+        // SAFETY: `s` is the last slice of the n vertices.
+        let rows = unsafe { sliced.rows(Scalar, s) };
+        for lane in 0..LANES {
+            let i = s * LANES + lane;
+            let want = if i < n {
+                sliced.get(i)
+            } else {
+                VertexAnchor::default()
+            };
+            let got = rows.map(|row| row[lane]);
+            let mut fields = [0.0f32; ANCHOR_FLOATS];
+            fields[TARGET..TARGET + 3].copy_from_slice(&want.target.to_array());
+            fields[NORMAL..NORMAL + 3].copy_from_slice(&want.normal.to_array());
+            fields[K_NORMAL] = want.k_normal;
+            fields[K_TANGENT] = want.k_tangent;
+            assert_eq!(got, fields, "lane {lane}");
+        }
+    }
+
+    #[test]
     fn curvature_matches_the_plain_loop_bit_for_bit() {
         let (system, x, anchors, _, _) = net();
         let sell = &system.sell;
         let xi = system.to_internal(&x);
         let ai = system.to_internal(&anchors);
+        let sliced = SlicedAnchors::new(&anchors, &system.order);
         let d: Vec<Vec3> = (0..sell.n)
             .map(|i| Vec3::new((i as f32 * 0.7).sin(), (i as f32 * 0.3).cos(), 0.2) * 1e-3)
             .collect();
@@ -2070,7 +2117,7 @@ mod tests {
         }
         let want = lanes.iter().fold(0.0f64, |a, b| a + b);
         for isa in isas() {
-            let got = curvature(isa, sell, &xi, &d, Some(&ai), 0..sell.slices());
+            let got = curvature(isa, sell, &xi, &d, Some(&sliced), 0..sell.slices());
             assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
         }
     }

@@ -107,11 +107,6 @@ impl Lanes for Avx512 {
         A.spread3(w)
     }
     #[inline(always)]
-    unsafe fn load8x8(self, p: *const f32) -> [Self::F; 8] {
-        // SAFETY: the caller's contract.
-        unsafe { A.load8x8(p) }
-    }
-    #[inline(always)]
     unsafe fn vec3s(self, p: *const f32, n: usize, rows: &super::Rows, j: Self::I) -> [Self::F; 3] {
         // SAFETY: the caller's contract.
         unsafe { A.vec3s(p, n, rows, j) }
@@ -158,10 +153,6 @@ impl Lanes for Avx512 {
     #[inline(always)]
     fn times3(self, i: Self::I) -> Self::I {
         A.times3(i)
-    }
-    #[inline(always)]
-    fn times8(self, i: Self::I) -> Self::I {
-        A.times8(i)
     }
     #[inline(always)]
     fn add(self, a: Self::F, b: Self::F) -> Self::F {
