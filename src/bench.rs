@@ -35,6 +35,8 @@ pub struct Machine {
     pub bandwidth_gb_s: f64,
     /// Time of one spring force evaluation in a tight, vectorisable loop, ns (all threads).
     pub spring_ns: f64,
+    /// The SIMD path of the relaxation kernels ([`crate::solver::kernel_path`]).
+    pub kernels: &'static str,
 }
 
 /// Measures the machine (about a second).
@@ -88,6 +90,7 @@ pub fn calibrate(quick: bool) -> Machine {
         threads: rayon::current_num_threads(),
         bandwidth_gb_s,
         spring_ns,
+        kernels: crate::solver::kernel_path(),
     }
 }
 

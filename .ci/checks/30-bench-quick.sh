@@ -8,6 +8,7 @@ import json, math
 d = json.load(open("target/bench-quick.json"))
 m = d["machine"]
 assert m["threads"] >= 1 and m["bandwidth_gb_s"] > 0 and m["spring_ns"] > 0, m
+assert m["kernels"] in ("scalar", "avx2", "avx512"), m
 names = [w["name"] for w in d["workloads"]]
 assert names == ["tube-10k", "tube-100k", "relax-1m"], names
 always = ("skin_vertices", "collider_triangles", "frames", "frames_converged", "frame_ms_median",

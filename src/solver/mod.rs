@@ -10,6 +10,23 @@ pub(crate) mod team;
 
 pub use reorder::morton_order;
 
+/// The SIMD path the relaxation kernels take in this process: `"avx2"` where the CPU has
+/// AVX2 (x86-64, detected at run time), else `"scalar"` (portable code); `"avx512"` only when
+/// the environment variable `DERMIS_SIMD=avx512` asks for it and the CPU has AVX-512F/VL.
+/// `DERMIS_SIMD=scalar` or `avx2` caps it. Every path gives the same bits; this is for
+/// reports (`dermis bench` prints it) and for comparing paths.
+///
+/// ```
+/// assert!(["scalar", "avx2", "avx512"].contains(&dermis::solver::kernel_path()));
+/// ```
+pub fn kernel_path() -> &'static str {
+    match simd::Isa::detect(0) {
+        simd::Isa::Scalar => "scalar",
+        simd::Isa::Avx2 => "avx2",
+        simd::Isa::Avx512 => "avx512",
+    }
+}
+
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
