@@ -1113,7 +1113,6 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
 ) -> ([S::F; 3], S::D) {
     let sell = f.sell;
     let own = own_lanes(l, sell, s);
-    let own3 = l.times3(own);
     let xp = f.x.as_ptr().cast::<f32>();
     let (d, a) = f.step.unwrap_or((f.x, 0.0));
     let (dp, a) = (d.as_ptr().cast::<f32>(), l.splat(a));
@@ -1260,8 +1259,9 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         energy = l.dadd(energy, l.dadd(normal, tangent));
     }
     if let Some(ext) = f.external {
-        let ep = ext.as_ptr().cast::<f32>();
-        let [gx, gy, gz] = unsafe { gather3(l, ep, own3) };
+        // SAFETY: `ext` has n entries (the caller's contract); a full slice is read as 24
+        // floats and deinterleaved, a partial one gathered at its clamped indices.
+        let [gx, gy, gz] = unsafe { own_vec3(l, sell, s, own, ext) };
         fx = l.add(fx, gx);
         fy = l.add(fy, gy);
         fz = l.add(fz, gz);
