@@ -72,10 +72,11 @@ impl Patch {
     }
 }
 
-/// Per vertex and collider: the closest-feature cache, a distance bound and a patch
-/// certificate. Laid out with the fields every pass reads (the distance bound) in the first 32
-/// bytes, aligned so that they never straddle two cache lines: a pass that skips a vertex on
-/// its bound touches one line per collider, not the whole 160-byte slot.
+/// Per vertex and collider: the closest-feature cache and a distance bound, 32 bytes (two per
+/// cache line), with its patch certificate kept apart (a [`Patch`] at the same index of a
+/// parallel array: 128 bytes read only when the vertex is near the collider). The frame plan
+/// and every pass read the bound of each vertex they do not skip whole; with the patch inline
+/// (a 160-byte slot) each bound cost a cache line of its own, and the plan stalled on them.
 #[derive(Debug, Clone, Copy)]
 #[repr(C, align(32))]
 pub(crate) struct Slot {
@@ -86,8 +87,6 @@ pub(crate) struct Slot {
     pub(crate) clearance: f32,
     travel_at: f64,
     p_ref: Vec3,
-    /// Cold: read only when a vertex is near the collider.
-    patch: Patch,
 }
 
 /// What one cached query did.
@@ -109,7 +108,6 @@ impl Slot {
         clearance: 0.0,
         travel_at: 0.0,
         p_ref: Vec3::ZERO,
-        patch: Patch::NEW,
     };
 
     /// Lower bound of the signed distance at `p`: the surface moved at most `travel −
@@ -127,32 +125,32 @@ impl Slot {
     }
 
     /// The exact projection of the rest-frame point `local` on `collider` (the answer of
-    /// [`ColliderMesh::project_point`]), from the patch when its certificate holds, else from a
-    /// BVH search that rebuilds the patch with triangles up to `margin_m` farther than the
-    /// nearest. `travel`: the collider's travel now.
+    /// [`ColliderMesh::project_point`]), from `patch` (this slot's) when its certificate holds,
+    /// else from a BVH search that rebuilds the patch with triangles up to `margin_m` farther
+    /// than the nearest. `travel`: the collider's travel now.
     #[inline]
     pub(crate) fn project(
         &mut self,
+        patch: &mut Patch,
         collider: &ColliderMesh,
         local: Vec3,
         travel: f64,
         margin_m: f32,
     ) -> (SurfaceProjection, Answer) {
-        let slack = self.patch.slack(local, travel);
+        let slack = patch.slack(local, travel);
         let hint = self.part;
         // A search builds a patch only when the collider stayed still since this slot's last
         // search (the passes of a relaxation share one collider state); the first search after
         // the collider moved is a plain one, since a single pass per state (substeps) would
         // never use the patch.
-        let margin = (self.patch.travel_at == travel).then_some(margin_m);
-        let (proj, certified) =
-            collider.project_patched(local, hint, &mut self.patch, slack, margin);
+        let margin = (patch.travel_at == travel).then_some(margin_m);
+        let (proj, certified) = collider.project_patched(local, hint, patch, slack, margin);
         self.part = proj.part;
         if certified {
             (proj, Answer::Certified)
         } else {
-            self.patch.at = local;
-            self.patch.travel_at = travel;
+            patch.at = local;
+            patch.travel_at = travel;
             (
                 proj,
                 Answer::Searched {

@@ -23,7 +23,7 @@ use thiserror::Error;
 
 use crate::mesh::TopologyError;
 use crate::solver::{ActiveContact, Projection};
-use cache::{Answer, Slot};
+use cache::{Answer, Patch, Slot};
 use collider::NONE;
 
 /// Vertices per parallel work item (fixed, so results never depend on the thread count).
@@ -432,8 +432,10 @@ pub struct SkinCollision {
     /// Each vertex's position after the last pass, resolved or skipped (NaN: none yet).
     last: Vec<Vec3>,
     states: Vec<VertexState>,
-    /// `vertex_count × colliders` slots, vertex-major.
+    /// `vertex_count × colliders` slots, vertex-major...
     slots: Vec<Slot>,
+    /// ... and their patch certificates (cold: apart, see [`Slot`]).
+    patches: Vec<Patch>,
     /// The skip tests and last positions in the solver's order, for projections.
     view: project::View,
     diagnostics: ContactDiagnostics,
@@ -495,6 +497,7 @@ impl SkinCollision {
             travel_seen: Vec::new(),
             states: vec![VertexState::NEW; vertex_count],
             slots: Vec::new(),
+            patches: Vec::new(),
             view: project::View::default(),
             diagnostics: ContactDiagnostics::default(),
             plan: None,
@@ -587,6 +590,7 @@ impl SkinCollision {
         self.reach = vec![Reach::NEW; n];
         self.last = vec![Vec3::NAN; n];
         self.slots = vec![Slot::NEW; n * self.colliders.len()];
+        self.patches = vec![Patch::NEW; n * self.colliders.len()];
     }
 
     /// Forgets the query cache (closest triangles, distance bounds, last positions) but keeps
@@ -597,6 +601,7 @@ impl SkinCollision {
         self.clear_frame_state();
         self.reach.fill(Reach::NEW);
         self.slots = vec![Slot::NEW; self.states.len() * self.colliders.len()];
+        self.patches = vec![Patch::NEW; self.states.len() * self.colliders.len()];
     }
 
     /// Forgets what only the last frame's passes need (each vertex's last position, touches and
@@ -1073,6 +1078,7 @@ impl SkinCollision {
             self.leave_view();
             self.reach.fill(Reach::NEW);
             self.slots.fill(Slot::NEW);
+            self.patches.fill(Patch::NEW);
         }
         self.travel_seen.clear();
         self.travel_seen
@@ -1103,37 +1109,43 @@ impl SkinCollision {
             .zip(self.last.par_chunks_mut(CHUNK))
             .zip(self.states.par_chunks_mut(CHUNK))
             .zip(self.slots.par_chunks_mut(CHUNK * nc))
+            .zip(self.patches.par_chunks_mut(CHUNK * nc))
             .zip(self.thickness.par_chunks(CHUNK))
             .enumerate()
-            .map(|(chunk, (((((xs, reach), last), states), slots), hs))| {
-                let mut done = ChunkPass::default();
-                let mut skipped = 0u64;
-                for (o, (((p, reach), last), state)) in xs
-                    .iter_mut()
-                    .zip(reach.iter_mut())
-                    .zip(last.iter_mut())
-                    .zip(states)
-                    .enumerate()
-                {
-                    if reach.skips(*p, ctx.travel_sum) {
-                        // Provably outside every contact band: what resolving would find,
-                        // without reading the collider slots.
-                        *last = *p;
-                        skipped += 1;
-                        continue;
+            .map(
+                |(chunk, ((((((xs, reach), last), states), slots), patches), hs))| {
+                    let mut done = ChunkPass::default();
+                    let mut skipped = 0u64;
+                    for (o, (((p, reach), last), state)) in xs
+                        .iter_mut()
+                        .zip(reach.iter_mut())
+                        .zip(last.iter_mut())
+                        .zip(states)
+                        .enumerate()
+                    {
+                        if reach.skips(*p, ctx.travel_sum) {
+                            // Provably outside every contact band: what resolving would find,
+                            // without reading the collider slots.
+                            *last = *p;
+                            skipped += 1;
+                            continue;
+                        }
+                        let cache = (
+                            &mut slots[o * nc..(o + 1) * nc],
+                            &mut patches[o * nc..(o + 1) * nc],
+                        );
+                        let (moved, bad) =
+                            ctx.resolve(p, hs[o], (reach, last), state, cache, &mut done.counters);
+                        done.counters.moved += u64::from(moved);
+                        if bad {
+                            done.unresolved.push((chunk * CHUNK + o) as u32);
+                        }
                     }
-                    let slots = &mut slots[o * nc..(o + 1) * nc];
-                    let (moved, bad) =
-                        ctx.resolve(p, hs[o], (reach, last), state, slots, &mut done.counters);
-                    done.counters.moved += u64::from(moved);
-                    if bad {
-                        done.unresolved.push((chunk * CHUNK + o) as u32);
-                    }
-                }
-                done.counters.skipped_bound += skipped * nc as u64;
-                done.counters.skipped_vertices += skipped;
-                done
-            })
+                    done.counters.skipped_bound += skipped * nc as u64;
+                    done.counters.skipped_vertices += skipped;
+                    done
+                },
+            )
             .collect();
         let mut total = ChunkPass::default();
         for c in per_chunk {
@@ -1270,7 +1282,7 @@ impl Ctx<'_> {
         h: f32,
         (reach, last): (&mut Reach, &mut Vec3),
         state: &mut VertexState,
-        slots: &mut [Slot],
+        (slots, patches): (&mut [Slot], &mut [Patch]),
         counters: &mut Counters,
     ) -> (bool, bool) {
         let start = *p;
@@ -1325,7 +1337,8 @@ impl Ctx<'_> {
                     counters.skipped_aabb += 1;
                     continue;
                 }
-                let (proj, answer) = slot.project(col, local, travel, (0.25 * band).max(1e-5));
+                let margin = (0.25 * band).max(1e-5);
+                let (proj, answer) = slot.project(&mut patches[c], col, local, travel, margin);
                 match answer {
                     Answer::Certified => counters.certified += 1,
                     Answer::Searched { hit } => {

@@ -216,16 +216,18 @@ impl SkinCollision {
                 Chunked::new(&mut self.states, CHUNK),
             );
             let slots = Chunked::new(&mut self.slots, CHUNK * nc);
+            let patches = Chunked::new(&mut self.patches, CHUNK * nc);
             let out = Chunked::new(&mut resolved, 1);
             let thickness = &self.thickness;
             let resolve = |b: usize| {
                 let chunk = busy[b];
                 // SAFETY: each busy chunk once per loop (`busy` has no repeats).
-                let (reach, states, slots, out) = unsafe {
+                let (reach, states, slots, patches, out) = unsafe {
                     (
                         reach.chunk(chunk),
                         states.chunk(chunk),
                         slots.chunk(chunk),
+                        patches.chunk(chunk),
                         out.chunk(b),
                     )
                 };
@@ -241,7 +243,10 @@ impl SkinCollision {
                             hs[k],
                             (&mut reach[k], &mut last),
                             &mut states[k],
-                            &mut slots[k * nc..(k + 1) * nc],
+                            (
+                                &mut slots[k * nc..(k + 1) * nc],
+                                &mut patches[k * nc..(k + 1) * nc],
+                            ),
                             &mut counters,
                         );
                         Resolved {

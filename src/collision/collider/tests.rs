@@ -6,7 +6,7 @@ use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{CompositeShapeRef, TriMesh as ParryMesh};
 
 use super::*;
-use crate::collision::cache::{Answer, Slot};
+use crate::collision::cache::{Answer, Patch, Slot};
 use crate::collision::shapes::ellipsoid;
 
 /// A small deterministic generator (64-bit LCG; also used by the eight-lane distances' tests).
@@ -252,14 +252,15 @@ fn split_mesh_answers_like_one_parry_mesh() {
     split.enter_substep(1.0, &Pose::IDENTITY, true);
     whole.enter_substep(1.0, &Pose::IDENTITY, true);
     let mut points = probes(&split, &mut rng);
-    let mut slots = vec![(Slot::NEW, Slot::NEW); points.len()];
+    let new = (Slot::NEW, Patch::NEW);
+    let mut slots = vec![(new, new); points.len()];
     let mut certified = 0;
     for pass in 0..8 {
         let step = 0.0005 * 0.7f32.powi(pass);
         for (k, (p, (a, b))) in points.iter_mut().zip(&mut slots).enumerate() {
             *p += rng.point(step);
-            let got = a.project(&split, *p, split.travel_m(), 0.004);
-            let want = b.project(&whole, *p, whole.travel_m(), 0.004);
+            let got = a.0.project(&mut a.1, &split, *p, split.travel_m(), 0.004);
+            let want = b.0.project(&mut b.1, &whole, *p, whole.travel_m(), 0.004);
             assert_eq!(bits(&got.0), bits(&want.0), "pass {pass} probe {k}");
             assert_eq!(got.1, want.1, "pass {pass} probe {k}");
             certified += usize::from(got.1 == Answer::Certified);
