@@ -347,6 +347,40 @@ fn sheet_draped_over_a_sphere_rests_at_the_thickness() {
     assert!(touching >= 9, "{touching}");
 }
 
+/// The frame plan's preparation (contacts to friction anchors, touching vertices listed) gives
+/// the same list and anchors on rayon's pool as serially, with more vertices than one chunk.
+#[test]
+fn plan_preparation_lists_the_same_touching_vertices_in_parallel_and_serially() {
+    let (v, t) = shapes::ellipsoid(Vec3::new(0.0, 0.0, -0.2), Vec3::splat(0.3), 16, 24).unwrap();
+    let mesh = sheet(41, 1.0, 0.0);
+    let n = mesh.positions().len();
+    assert!(n > 4 * CHUNK);
+    let mut contact = SkinCollision::new(n, ContactConfig::DEFAULT).unwrap();
+    contact.add_collider(ColliderMesh::from_mesh(v, t).unwrap());
+    let mut x = mesh.positions().to_vec();
+    contact.advance_frame(&mut x).unwrap();
+    let (mut serial, mut parallel) = (contact.clone(), contact.clone());
+    let (a, b) = (
+        serial.anchor_contacts(false),
+        parallel.anchor_contacts(true),
+    );
+    // The ball's cap pokes through the sheet: a patch of its vertices touches it.
+    assert!(a.len() > 20, "{} touching", a.len());
+    assert_eq!(a, b);
+    for set in [&serial, &parallel] {
+        let touching = set.states.iter().enumerate();
+        let listed: Vec<u32> = touching
+            .filter(|(_, s)| s.contact.collider != NONE)
+            .map(|(i, _)| i as u32)
+            .collect();
+        assert_eq!(listed, a);
+        assert!(set.states.iter().all(|s| s.anchor == s.contact));
+    }
+    // Before the preparation some anchors were not the contacts (the frame's start).
+    let stale = contact.states.iter().filter(|s| s.anchor != s.contact).count();
+    assert!(stale > 0);
+}
+
 /// Sheet over a ball sliding along x by `shift` over `frames` frames; returns the sheet at the
 /// end and at the start.
 fn slide(friction: f32, shift: f32, frames: u32) -> (Vec<Vec3>, Vec<Vec3>, Vec<Vec3>) {
