@@ -377,7 +377,11 @@ fn plan_preparation_lists_the_same_touching_vertices_in_parallel_and_serially() 
         assert!(set.states.iter().all(|s| s.anchor == s.contact));
     }
     // Before the preparation some anchors were not the contacts (the frame's start).
-    let stale = contact.states.iter().filter(|s| s.anchor != s.contact).count();
+    let stale = contact
+        .states
+        .iter()
+        .filter(|s| s.anchor != s.contact)
+        .count();
     assert!(stale > 0);
 }
 
