@@ -713,13 +713,9 @@ impl SkinCollision {
         let touched = self.anchor_contacts(parallel);
         // The plan reads the cached bounds: none may survive a collider replaced in place.
         self.collider_travel();
-        let motion = self.reaching_motion(x, &touched);
         let h_min = self.thickness.iter().copied().fold(f32::INFINITY, f32::min);
-        let wanted = if h_min > 0.0 {
-            (motion / (0.5 * h_min)).ceil()
-        } else {
-            1.0
-        };
+        let motion = self.reaching_motion(x, &touched, 0.5 * h_min);
+        let wanted = wanted_substeps(motion, 0.5 * h_min);
         let substeps = (wanted.max(1.0) as u64).min(self.config.max_substeps as u64) as u32;
         let capped = wanted > self.config.max_substeps as f32;
         self.diagnostics.substeps_capped = capped;
@@ -787,7 +783,12 @@ impl SkinCollision {
     /// collider's global motion bound. Far colliders, however fast, cost no substep.
     /// `touched`: the vertices touching a collider after the last pass, in order (visited
     /// first, see below).
-    fn reaching_motion(&self, x: &[Vec3], touched: &[u32]) -> f32 {
+    ///
+    /// Only the substep count the motion asks for is exact, `max(1, ⌈motion / step⌉)` for
+    /// `step` half the thinnest skin (what [`begin_frame`](Self::begin_frame) makes of it): a
+    /// pair whose motion stays within the count the largest reaching motion found so far asks
+    /// for changes nothing, and is not tested.
+    fn reaching_motion(&self, x: &[Vec3], touched: &[u32], step: f32) -> f32 {
         struct Motion {
             prev: Pose,
             pose: Pose,
@@ -855,15 +856,17 @@ impl SkinCollision {
             })
             .collect();
         let cfg = &self.config;
+        let covered = |worst: f32| covered_motion(worst, step);
         // The largest motion, above `worst`, of a pair of vertex `i` (now at `p1`) and a
-        // collider it can reach; `worst` when there is none.
-        let vertex = |p1: Vec3, last: Vec3, h: f32, slots: &[Slot], mut worst: f32| {
+        // collider it can reach, when it asks for more substeps than `worst`; else `worst`;
+        // with `skip = covered(worst)`.
+        let vertex = |p1: Vec3, last: Vec3, h: f32, slots: &[Slot], (mut worst, mut skip)| {
             let p0 = if last.is_finite() { last } else { p1 };
             let v = p0.distance(p1);
             let band = h * (1.0 + cfg.contact_band);
             for ((col, m), slot) in self.colliders.iter().zip(&motions).zip(slots) {
                 // `motion` below is at most `m.global + v` (a still pair: 0), and `worst >= 0`.
-                if m.global + v <= worst {
+                if m.global + v <= skip {
                     continue;
                 }
                 // The path's speed bound (see above), with room for the rounding of the
@@ -886,7 +889,7 @@ impl SkinCollision {
                     0.0
                 };
                 let motion = (speed + m.deform).min(m.global + v);
-                if motion <= worst {
+                if motion <= skip {
                     continue;
                 }
                 // Rounding of the transforms and queries.
@@ -939,16 +942,17 @@ impl SkinCollision {
                 };
                 if reaches(&distance, speed, margin) {
                     worst = motion;
+                    skip = covered(worst);
                 }
             }
-            worst
+            (worst, skip)
         };
         // The result is a maximum, whatever order the pairs are visited in, and pairs that
         // move less than the largest reaching one found so far need no query. Vertices that
         // touched a collider last (their friction anchors) most likely reach it again: visiting
         // them first lets the whole skin skip the queries of a deforming collider, whose motion
         // bound is the same for every vertex.
-        let touched = touched.iter().fold(0.0f32, |worst, &i| {
+        let touched = touched.iter().fold((0.0f32, covered(0.0)), |worst, &i| {
             let i = i as usize;
             let slots = &self.slots[i * nc..(i + 1) * nc];
             vertex(x[i], self.last[i], self.thickness[i], slots, worst)
@@ -965,7 +969,7 @@ impl SkinCollision {
                 {
                     worst = vertex(p1, last, h, slots, worst);
                 }
-                worst
+                worst.0
             })
             .collect();
         per_chunk.into_iter().fold(0.0f32, f32::max)
@@ -1446,6 +1450,28 @@ impl Ctx<'_> {
         };
         *last = *p;
         (*p != start, unresolved)
+    }
+}
+
+/// The substeps a largest reaching motion `motion` asks for, before the clamp to
+/// `1..=max_substeps`: `⌈motion / step⌉` (f32), `step` half the thinnest skin (none: 1).
+fn wanted_substeps(motion: f32, step: f32) -> f32 {
+    if step > 0.0 {
+        (motion / step).ceil()
+    } else {
+        1.0
+    }
+}
+
+/// The motion up to which a pair asks for no more substeps than `worst` does (at least
+/// `worst`): within the count `k = max(1, ⌈worst / step⌉)`, less a relative 1e-5, so that the f32
+/// division of [`wanted_substeps`] cannot round a motion below it up to `k + 1`.
+fn covered_motion(worst: f32, step: f32) -> f32 {
+    if step > 0.0 {
+        let k = wanted_substeps(worst, step).max(1.0);
+        (k * step * (1.0 - 1e-5)).max(worst)
+    } else {
+        worst
     }
 }
 

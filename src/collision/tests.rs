@@ -347,6 +347,27 @@ fn sheet_draped_over_a_sphere_rests_at_the_thickness() {
     assert!(touching >= 9, "{touching}");
 }
 
+proptest::proptest! {
+    /// A pair the plan skips as covered by the largest motion so far never asks for more
+    /// substeps than that motion does, at the boundaries between counts too.
+    #[test]
+    fn motions_the_plan_skips_ask_for_no_more_substeps(
+        step in 1e-6f32..1e-1,
+        k in 0u32..40,
+        nudge in -1e-5f32..1e-5,
+        fraction in 0.0f32..=1.0,
+    ) {
+        // `worst` near the boundary between `k` and `k + 1` substeps.
+        let worst = (k as f32 * step * (1.0 + nudge)).max(0.0);
+        let covered = covered_motion(worst, step);
+        proptest::prop_assert!(covered >= worst);
+        let counts = |m: f32| wanted_substeps(m, step).max(1.0);
+        for m in [covered, covered * fraction, worst + (covered - worst) * fraction] {
+            proptest::prop_assert!(counts(m) <= counts(worst), "{m} vs {worst}, step {step}");
+        }
+    }
+}
+
 /// The frame plan's preparation (contacts to friction anchors, touching vertices listed) gives
 /// the same list and anchors on rayon's pool as serially, with more vertices than one chunk.
 #[test]
