@@ -714,8 +714,10 @@ impl SkinCollision {
         // The plan reads the cached bounds: none may survive a collider replaced in place.
         self.collider_travel();
         let h_min = self.thickness.iter().copied().fold(f32::INFINITY, f32::min);
-        let motion = self.reaching_motion(x, &touched, 0.5 * h_min);
-        let wanted = wanted_substeps(motion, 0.5 * h_min);
+        // Each substep may move half the thinnest skin.
+        let per_substep = 0.5 * h_min;
+        let motion = self.reaching_motion(x, &touched, per_substep);
+        let wanted = wanted_substeps(motion, per_substep);
         let substeps = (wanted.max(1.0) as u64).min(self.config.max_substeps as u64) as u32;
         let capped = wanted > self.config.max_substeps as f32;
         self.diagnostics.substeps_capped = capped;

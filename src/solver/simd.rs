@@ -2073,15 +2073,15 @@ mod tests {
         for (i, &o) in system.order.iter().enumerate() {
             assert_eq!(sliced.get(i), anchors[o as usize], "internal vertex {i}");
         }
-        // The lanes the kernels read: each row's value is the anchor's field, and the lanes
-        // past the last vertex hold zero anchors.
+        // The lanes the kernels read: each row's value is the caller's anchor's field, and the
+        // lanes past the last vertex hold zero anchors.
         let s = n / LANES;
         // SAFETY: `s` is the last slice of the n vertices.
         let rows = unsafe { sliced.rows(Scalar, s) };
         for lane in 0..LANES {
             let i = s * LANES + lane;
             let want = if i < n {
-                sliced.get(i)
+                anchors[system.order[i] as usize]
             } else {
                 VertexAnchor::default()
             };
