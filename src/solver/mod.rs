@@ -59,6 +59,45 @@ pub struct Spring {
     pub rest: f32,
 }
 
+/// The kernels' fused arithmetic on single vectors: the operations of their eight lanes
+/// ([`simd`]), each product and sum rounded where theirs are, so per-vertex code (a partial
+/// slice, the tests' plain loops) gives their bits.
+pub(crate) mod fused {
+    use glam::{DVec3, Vec3};
+
+    /// `a·b` as `fma(a_z, b_z, fma(a_y, b_y, a_x b_x))`.
+    #[inline]
+    pub(crate) fn dot(a: Vec3, b: Vec3) -> f32 {
+        a.z.mul_add(b.z, a.y.mul_add(b.y, a.x * b.x))
+    }
+
+    /// [`dot`] in f64.
+    #[inline]
+    pub(crate) fn dot64(a: DVec3, b: DVec3) -> f64 {
+        a.z.mul_add(b.z, a.y.mul_add(b.y, a.x * b.x))
+    }
+
+    /// `a s + c` per component, each rounded once.
+    #[inline]
+    pub(crate) fn mul_add(a: Vec3, s: f32, c: Vec3) -> Vec3 {
+        Vec3::new(
+            a.x.mul_add(s, c.x),
+            a.y.mul_add(s, c.y),
+            a.z.mul_add(s, c.z),
+        )
+    }
+
+    /// [`mul_add`] in f64.
+    #[inline]
+    pub(crate) fn mul_add64(a: DVec3, s: f64, c: DVec3) -> DVec3 {
+        DVec3::new(
+            a.x.mul_add(s, c.x),
+            a.y.mul_add(s, c.y),
+            a.z.mul_add(s, c.z),
+        )
+    }
+}
+
 /// A per-vertex anchor spring towards a target, stiffer along the body normal than across it:
 /// skin slides along the body more easily than it leaves it.
 ///
@@ -86,22 +125,26 @@ impl VertexAnchor {
     #[inline]
     fn force_energy(&self, x: Vec3) -> (Vec3, f64) {
         let d = x - self.target;
-        let dn = d.dot(self.normal);
-        let dt = d - self.normal * dn;
-        let force = -(self.normal * (self.k_normal * dn) + dt * self.k_tangent);
+        let n = self.normal;
+        let dn = fused::dot(d, n);
+        let dt = fused::mul_add(n, -dn, d);
+        let kdn = self.k_normal * dn;
+        let force = -fused::mul_add(n, kdn, dt * self.k_tangent);
         // Energy in f64 from the exact difference, for the line search's sake.
         let d64 = x.as_dvec3() - self.target.as_dvec3();
-        let n64 = self.normal.as_dvec3();
-        let dn64 = d64.dot(n64);
-        let energy = 0.5 * self.k_normal as f64 * dn64 * dn64
-            + 0.5 * self.k_tangent as f64 * (d64 - n64 * dn64).length_squared();
+        let n64 = n.as_dvec3();
+        let dn64 = fused::dot64(d64, n64);
+        let p = fused::mul_add64(n64, -dn64, d64);
+        let tangent = 0.5 * self.k_tangent as f64 * fused::dot64(p, p);
+        let energy = (0.5 * self.k_normal as f64 * dn64).mul_add(dn64, tangent);
         (force, energy)
     }
 
     #[inline]
     fn curvature(&self, u: Vec3) -> f32 {
-        let un = u.dot(self.normal);
-        self.k_normal * un * un + self.k_tangent * (u.length_squared() - un * un).max(0.0)
+        let un = fused::dot(u, self.normal);
+        let across = (-un).mul_add(un, fused::dot(u, u)).max(0.0);
+        (self.k_normal * un).mul_add(un, self.k_tangent * across)
     }
 }
 

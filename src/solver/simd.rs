@@ -1,11 +1,16 @@
-//! Eight-lane force and curvature kernels over the sliced springs: AVX2 (with AVX-512 for the
-//! f64 half) when the CPU has it (checked at run time), otherwise a portable path with
-//! bit-identical results.
+//! Eight-lane force and curvature kernels over the sliced springs: AVX2 with FMA (with AVX-512
+//! for the f64 half on request) when the CPU has them (checked at run time), otherwise a
+//! portable path with bit-identical results.
 //!
 //! Both paths run the same generic code over a [`Lanes`] implementation, lane by lane the same
-//! IEEE operations in the same order (no fused multiply-add, no approximate reciprocals), so the
-//! results do not depend on the CPU; and they are the operations of the plain per-vertex loop
-//! over CSR springs, so they do not depend on the layout either.
+//! IEEE operations in the same order, so the results do not depend on the CPU; and they are
+//! the operations of the plain per-vertex loop over CSR springs, so they do not depend on the
+//! layout either. Products that feed a sum are fused with it (`fma`, one rounding: the dot
+//! products, the trial point `x + a d`, the force and energy accumulations); the portable path
+//! takes the same fused operations from `f32::mul_add` and `f64::mul_add`, which round once on
+//! every target (in software, and much slower, on a CPU without FMA). Fusing them cut a
+//! relaxation iteration's instructions by 7.5 % and its time by 12-17 % (session 15,
+//! `benches/README.md`). No approximate reciprocals.
 #![expect(
     unsafe_code,
     reason = "AVX2 intrinsics and gathers from raw pointers behind a run-time CPU check; every \
@@ -141,11 +146,14 @@ pub(crate) trait Lanes: Copy {
     fn add(self, a: Self::F, b: Self::F) -> Self::F;
     fn sub(self, a: Self::F, b: Self::F) -> Self::F;
     fn mul(self, a: Self::F, b: Self::F) -> Self::F;
+    /// `a·b + c` per lane, rounded once (a fused multiply-add).
+    fn fma(self, a: Self::F, b: Self::F, c: Self::F) -> Self::F;
+    /// `c − a·b` per lane, rounded once.
+    fn fnma(self, a: Self::F, b: Self::F, c: Self::F) -> Self::F;
     fn div(self, a: Self::F, b: Self::F) -> Self::F;
     fn sqrt(self, a: Self::F) -> Self::F;
     /// `a > b ? a : b` (the second operand when either is NaN).
     fn max(self, a: Self::F, b: Self::F) -> Self::F;
-    fn neg(self, a: Self::F) -> Self::F;
     fn gt(self, a: Self::F, b: Self::F) -> Self::M;
     fn le(self, a: Self::F, b: Self::F) -> Self::M;
     /// `|a|` per lane (the sign bit cleared).
@@ -163,6 +171,10 @@ pub(crate) trait Lanes: Copy {
     fn dadd(self, a: Self::D, b: Self::D) -> Self::D;
     fn dsub(self, a: Self::D, b: Self::D) -> Self::D;
     fn dmul(self, a: Self::D, b: Self::D) -> Self::D;
+    /// `a·b + c` per lane, rounded once.
+    fn dfma(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D;
+    /// `c − a·b` per lane, rounded once.
+    fn dfnma(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D;
     fn dstore(self, a: Self::D) -> [f64; 8];
 }
 
@@ -279,6 +291,14 @@ impl Lanes for Scalar {
         std::array::from_fn(|l| a[l] * b[l])
     }
     #[inline(always)]
+    fn fma(self, a: Self::F, b: Self::F, c: Self::F) -> Self::F {
+        std::array::from_fn(|l| a[l].mul_add(b[l], c[l]))
+    }
+    #[inline(always)]
+    fn fnma(self, a: Self::F, b: Self::F, c: Self::F) -> Self::F {
+        std::array::from_fn(|l| (-a[l]).mul_add(b[l], c[l]))
+    }
+    #[inline(always)]
     fn div(self, a: Self::F, b: Self::F) -> Self::F {
         std::array::from_fn(|l| a[l] / b[l])
     }
@@ -289,10 +309,6 @@ impl Lanes for Scalar {
     #[inline(always)]
     fn max(self, a: Self::F, b: Self::F) -> Self::F {
         std::array::from_fn(|l| if a[l] > b[l] { a[l] } else { b[l] })
-    }
-    #[inline(always)]
-    fn neg(self, a: Self::F) -> Self::F {
-        a.map(|a| -a)
     }
     #[inline(always)]
     fn gt(self, a: Self::F, b: Self::F) -> Self::M {
@@ -343,6 +359,14 @@ impl Lanes for Scalar {
         std::array::from_fn(|l| a[l] * b[l])
     }
     #[inline(always)]
+    fn dfma(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D {
+        std::array::from_fn(|l| a[l].mul_add(b[l], c[l]))
+    }
+    #[inline(always)]
+    fn dfnma(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D {
+        std::array::from_fn(|l| (-a[l]).mul_add(b[l], c[l]))
+    }
+    #[inline(always)]
     fn dstore(self, a: Self::D) -> [f64; 8] {
         a
     }
@@ -373,8 +397,8 @@ mod avx2 {
         }
     }
 
-    /// AVX2 lanes; only constructed after `is_x86_feature_detected!("avx2")`, and only used
-    /// inside `#[target_feature(enable = "avx2")]` functions (every method is inlined there).
+    /// AVX2 lanes; only constructed after `is_x86_feature_detected!` of AVX2 and FMA, and only used
+    /// inside `#[target_feature(enable = "avx2,fma")]` functions (every method is inlined there).
     #[derive(Clone, Copy)]
     pub(crate) struct Avx2;
 
@@ -536,7 +560,7 @@ mod avx2 {
                         _mm256_castps128_ps256(_mm_loadu_ps(dp.offset(lo))),
                         _mm_loadu_ps(dp.offset(hi)),
                     );
-                    _mm256_add_ps(x, _mm256_mul_ps(d, a))
+                    _mm256_fmadd_ps(d, a, x)
                 };
                 let (v0, v1, v2, v3) = (pair(0, 4), pair(1, 5), pair(2, 6), pair(3, 7));
                 let t0 = _mm256_unpacklo_ps(v0, v1);
@@ -659,6 +683,14 @@ mod avx2 {
             unsafe { _mm256_mul_ps(a, b) }
         }
         #[inline(always)]
+        fn fma(self, a: Self::F, b: Self::F, c: Self::F) -> Self::F {
+            unsafe { _mm256_fmadd_ps(a, b, c) }
+        }
+        #[inline(always)]
+        fn fnma(self, a: Self::F, b: Self::F, c: Self::F) -> Self::F {
+            unsafe { _mm256_fnmadd_ps(a, b, c) }
+        }
+        #[inline(always)]
         fn div(self, a: Self::F, b: Self::F) -> Self::F {
             unsafe { _mm256_div_ps(a, b) }
         }
@@ -670,10 +702,6 @@ mod avx2 {
         fn max(self, a: Self::F, b: Self::F) -> Self::F {
             // maxps returns its second operand unless the first is greater.
             unsafe { _mm256_max_ps(a, b) }
-        }
-        #[inline(always)]
-        fn neg(self, a: Self::F) -> Self::F {
-            unsafe { _mm256_xor_ps(a, _mm256_set1_ps(-0.0)) }
         }
         #[inline(always)]
         fn gt(self, a: Self::F, b: Self::F) -> Self::M {
@@ -738,6 +766,24 @@ mod avx2 {
             unsafe { (_mm256_mul_pd(a.0, b.0), _mm256_mul_pd(a.1, b.1)) }
         }
         #[inline(always)]
+        fn dfma(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D {
+            unsafe {
+                (
+                    _mm256_fmadd_pd(a.0, b.0, c.0),
+                    _mm256_fmadd_pd(a.1, b.1, c.1),
+                )
+            }
+        }
+        #[inline(always)]
+        fn dfnma(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D {
+            unsafe {
+                (
+                    _mm256_fnmadd_pd(a.0, b.0, c.0),
+                    _mm256_fnmadd_pd(a.1, b.1, c.1),
+                )
+            }
+        }
+        #[inline(always)]
         fn dstore(self, a: Self::D) -> [f64; 8] {
             let mut out = [0.0f64; 8];
             // SAFETY: eight doubles of room.
@@ -755,7 +801,7 @@ mod avx2 {
 pub(crate) enum Isa {
     /// Portable arrays.
     Scalar,
-    /// AVX2 (x86-64 only, detected at run time).
+    /// AVX2 and FMA (x86-64 only, detected at run time).
     Avx2,
     /// AVX2 for the f32 half (with the 32 registers of AVX-512VL), AVX-512F for the f64 half
     /// (x86-64 only, detected at run time). Only on request (`DERMIS_SIMD=avx512`): fewer
@@ -789,7 +835,10 @@ impl Isa {
     pub fn available(n: usize) -> Vec<Self> {
         let mut all = vec![Self::Scalar];
         #[cfg(target_arch = "x86_64")]
-        if n < (1 << 27) && std::arch::is_x86_feature_detected!("avx2") {
+        if n < (1 << 27)
+            && std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma")
+        {
             all.push(Self::Avx2);
             if std::arch::is_x86_feature_detected!("avx512f")
                 && std::arch::is_x86_feature_detected!("avx512vl")
@@ -1054,7 +1103,7 @@ macro_rules! with_ends {
 #[inline(always)]
 fn stepped<S: Lanes, const STEP: bool>(l: S, x: [S::F; 3], d: [S::F; 3], a: S::F) -> [S::F; 3] {
     if STEP {
-        std::array::from_fn(|c| l.add(x[c], l.mul(d[c], a)))
+        std::array::from_fn(|c| l.fma(d[c], a, x[c]))
     } else {
         x
     }
@@ -1121,7 +1170,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         if STEP && (s + 1) * LANES <= sell.n {
             // A full slice: the step on the 24 floats as stored, then one transpose.
             let (xs, ds) = (xp.add(3 * LANES * s), dp.add(3 * LANES * s));
-            let y = [0, 8, 16].map(|f| l.add(l.load_at(xs.add(f)), l.mul(l.load_at(ds.add(f)), a)));
+            let y = [0, 8, 16].map(|f| l.fma(l.load_at(ds.add(f)), a, l.load_at(xs.add(f))));
             l.deinterleave(y)
         } else {
             let x = own_vec3(l, sell, s, own, f.x);
@@ -1155,7 +1204,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
                 }
             };
             let (ex, ey, ez) = (l.sub(z[0], yx), l.sub(z[1], yy), l.sub(z[2], yz));
-            let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
+            let l2 = l.fma(ez, ez, l.fma(ey, ey, l.mul(ex, ex)));
             // `len > MIN_POSITIVE` exactly when `l2 > 0`: a positive f32 `l2` is at least the
             // smallest subnormal, whose root is ~3.7e-23 (tested against zero, the test needs
             // no constant of its own nor waits for the root).
@@ -1166,9 +1215,9 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
             // `f + e·0` is `f` bit for bit (`e` is finite there, and a sum that starts at +0 is
             // never −0), as if the spring were skipped.
             let c = l.keep(ok, l.mul(l.mul(k, l.sub(len, rest)), inv));
-            fx = l.add(fx, l.mul(ex, c));
-            fy = l.add(fy, l.mul(ey, c));
-            fz = l.add(fz, l.mul(ez, c));
+            fx = l.fma(ex, c, fx);
+            fy = l.fma(ey, c, fy);
+            fz = l.fma(ez, c, fz);
             (j, z, len, inv, ok, k, rest)
         }};
     }
@@ -1208,10 +1257,7 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
             l.dsub(l.widen(zy), yy64),
             l.dsub(l.widen(zz), yz64),
         );
-        let l2_64 = l.dadd(
-            l.dadd(l.dmul(ex64, ex64), l.dmul(ey64, ey64)),
-            l.dmul(ez64, ez64),
-        );
+        let l2_64 = l.dfma(ez64, ez64, l.dfma(ey64, ey64, l.dmul(ex64, ex64)));
         // Masks applied in f32 (cheaper than on the f64 halves), with the same results: a
         // degenerate spring gets no Newton step (`linear + 0`), and a spring to a lower vertex
         // (negative stiffness) or padding adds `0·st² = +0` to an energy that starts at +0.
@@ -1219,10 +1265,8 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         let len64 = l.widen(len);
         let linear = l.dsub(len64, l.widen(rest));
         let half_inv = l.keep(ok, l.mul(half, inv));
-        let newton = l.dmul(l.dsub(l2_64, l.dmul(len64, len64)), l.widen(half_inv));
-        let stretch = l.dadd(linear, newton);
-        let term = l.dmul(l.dmul(l.widen(l.max(k, zero)), stretch), stretch);
-        energy = l.dadd(energy, term);
+        let stretch = l.dfma(l.dfnma(len64, len64, l2_64), l.widen(half_inv), linear);
+        energy = l.dfma(l.dmul(l.widen(l.max(k, zero)), stretch), stretch, energy);
     }
     if let Some(a) = f.anchors {
         // SAFETY: `s` is a slice of the n vertices the anchors have (the caller's contract).
@@ -1231,32 +1275,27 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         let (nx, ny, nz) = (rows[NORMAL], rows[NORMAL + 1], rows[NORMAL + 2]);
         let (kn, kt) = (rows[K_NORMAL], rows[K_TANGENT]);
         let (dx, dy, dz) = (l.sub(yx, tx), l.sub(yy, ty), l.sub(yz, tz));
-        let dn = l.add(l.add(l.mul(dx, nx), l.mul(dy, ny)), l.mul(dz, nz));
-        let (tx_, ty_, tz_) = (
-            l.sub(dx, l.mul(nx, dn)),
-            l.sub(dy, l.mul(ny, dn)),
-            l.sub(dz, l.mul(nz, dn)),
-        );
+        let dn = l.fma(dz, nz, l.fma(dy, ny, l.mul(dx, nx)));
+        let (tx_, ty_, tz_) = (l.fnma(nx, dn, dx), l.fnma(ny, dn, dy), l.fnma(nz, dn, dz));
         let kdn = l.mul(kn, dn);
-        fx = l.add(fx, l.neg(l.add(l.mul(nx, kdn), l.mul(tx_, kt))));
-        fy = l.add(fy, l.neg(l.add(l.mul(ny, kdn), l.mul(ty_, kt))));
-        fz = l.add(fz, l.neg(l.add(l.mul(nz, kdn), l.mul(tz_, kt))));
+        fx = l.sub(fx, l.fma(nx, kdn, l.mul(tx_, kt)));
+        fy = l.sub(fy, l.fma(ny, kdn, l.mul(ty_, kt)));
+        fz = l.sub(fz, l.fma(nz, kdn, l.mul(tz_, kt)));
         let (dx, dy, dz) = (
             l.dsub(yx64, l.widen(tx)),
             l.dsub(yy64, l.widen(ty)),
             l.dsub(yz64, l.widen(tz)),
         );
         let (nx, ny, nz) = (l.widen(nx), l.widen(ny), l.widen(nz));
-        let dn = l.dadd(l.dadd(l.dmul(dx, nx), l.dmul(dy, ny)), l.dmul(dz, nz));
+        let dn = l.dfma(dz, nz, l.dfma(dy, ny, l.dmul(dx, nx)));
         let (px, py, pz) = (
-            l.dsub(dx, l.dmul(nx, dn)),
-            l.dsub(dy, l.dmul(ny, dn)),
-            l.dsub(dz, l.dmul(nz, dn)),
+            l.dfnma(nx, dn, dx),
+            l.dfnma(ny, dn, dy),
+            l.dfnma(nz, dn, dz),
         );
-        let lt = l.dadd(l.dadd(l.dmul(px, px), l.dmul(py, py)), l.dmul(pz, pz));
-        let normal = l.dmul(l.dmul(l.widen(kn), dn), dn);
+        let lt = l.dfma(pz, pz, l.dfma(py, py, l.dmul(px, px)));
         let tangent = l.dmul(l.widen(kt), lt);
-        energy = l.dadd(energy, l.dadd(normal, tangent));
+        energy = l.dadd(energy, l.dfma(l.dmul(l.widen(kn), dn), dn, tangent));
     }
     if let Some(ext) = f.external {
         // SAFETY: `ext` has n entries (the caller's contract); a full slice is read as 24
@@ -1265,9 +1304,10 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
         fx = l.add(fx, gx);
         fy = l.add(fy, gy);
         fz = l.add(fz, gz);
-        let work = l.dadd(
-            l.dadd(l.dmul(l.widen(gx), yx64), l.dmul(l.widen(gy), yy64)),
-            l.dmul(l.widen(gz), yz64),
+        let work = l.dfma(
+            l.widen(gz),
+            yz64,
+            l.dfma(l.widen(gy), yy64, l.dmul(l.widen(gx), yx64)),
         );
         energy = l.dsub(energy, l.dadd(work, work));
     }
@@ -1399,13 +1439,13 @@ fn force_chunk_any<S: Lanes>(l: S, f: &ForceInputs<'_>, first: usize, r: &mut [V
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
 fn force_chunk_avx2(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
     force_chunk_any(avx2::Avx2, f, first, r)
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f,avx512vl")]
+#[target_feature(enable = "avx2,fma,avx512f,avx512vl")]
 fn force_chunk_avx512(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
     force_chunk_any(avx512::Avx512, f, first, r)
 }
@@ -1462,13 +1502,13 @@ fn direction_chunk<S: Lanes>(
             for (k, dv) in dv.iter().enumerate() {
                 // SAFETY: eight vectors from `o` are in bounds of `x` (same length as `d`).
                 unsafe {
-                    let moved = l.add(l.load_at(xp.add(8 * k)), l.mul(*dv, a));
+                    let moved = l.fma(*dv, a, l.load_at(xp.add(8 * k)));
                     l.store_at(xp.add(8 * k), moved);
                 }
             }
         }
         let wv = l.spread3(l.load(&w[o..o + LANES]));
-        let nv: [S::F; 3] = std::array::from_fn(|k| l.add(l.mul(rv[k], wv[k]), l.mul(dv[k], b)));
+        let nv: [S::F; 3] = std::array::from_fn(|k| l.fma(dv[k], b, l.mul(rv[k], wv[k])));
         for (k, nv) in nv.iter().enumerate() {
             // SAFETY: as above.
             unsafe { l.store_at(dp.add(8 * k), *nv) };
@@ -1481,16 +1521,16 @@ fn direction_chunk<S: Lanes>(
     }
     for i in full..d.len() {
         if let Some((x, a)) = step.as_mut() {
-            x[i] += d[i] * *a;
+            x[i] = d[i].mul_add(Vec3::splat(*a), x[i]);
         }
-        d[i] = r[i] * w[i] + d[i] * beta;
+        d[i] = d[i].mul_add(Vec3::splat(beta), r[i] * w[i]);
         slope += r[i].dot(d[i]) as f64;
     }
     slope
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
 fn direction_chunk_avx2(
     d: &mut [Vec3],
     r: &[Vec3],
@@ -1531,18 +1571,18 @@ fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32) {
     for f in (0..full).step_by(LANES) {
         // SAFETY: eight floats from `f < full <= floats` are in bounds of `x` and `d`.
         unsafe {
-            let moved = l.add(l.load_at(xp.add(f)), l.mul(l.load_at(dp.add(f)), av));
+            let moved = l.fma(l.load_at(dp.add(f)), av, l.load_at(xp.add(f)));
             l.store_at(xp.add(f), moved);
         }
     }
     for f in full..floats {
         // SAFETY: `f < floats`, in bounds of both.
-        unsafe { *xp.add(f) += *dp.add(f) * a };
+        unsafe { *xp.add(f) = (*dp.add(f)).mul_add(a, *xp.add(f)) };
     }
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
 fn advance_chunk_avx2(x: &mut [Vec3], d: &[Vec3], a: f32) {
     advance_chunk(avx2::Avx2, x, d, a)
 }
@@ -1600,20 +1640,19 @@ fn curvature_chunk<S: Lanes>(
             let ([zx, zy, zz], [vx, vy, vz]) = unsafe { l.vec3s_pair(xp, dp, n, &rows, j) };
             let (ex, ey, ez) = (l.sub(zx, xx), l.sub(zy, xy), l.sub(zz, xz));
             let (ux, uy, uz) = (l.sub(vx, dx), l.sub(vy, dy), l.sub(vz, dz));
-            let l2 = l.add(l.add(l.mul(ex, ex), l.mul(ey, ey)), l.mul(ez, ez));
-            let uu = l.add(l.add(l.mul(ux, ux), l.mul(uy, uy)), l.mul(uz, uz));
-            let eu = l.add(l.add(l.mul(ex, ux), l.mul(ey, uy)), l.mul(ez, uz));
+            let l2 = l.fma(ez, ez, l.fma(ey, ey, l.mul(ex, ex)));
+            let uu = l.fma(uz, uz, l.fma(uy, uy, l.mul(ux, ux)));
+            let eu = l.fma(ez, uz, l.fma(ey, uy, l.mul(ex, ux)));
             let inv = l.div(one, l.sqrt(l2));
             let along = l.mul(eu, inv);
             let along2 = l.mul(along, along);
-            let transverse = l.max(l.sub(uu, along2), zero);
-            let taut = l.max(l.sub(one, l.mul(rest, inv)), zero);
+            let transverse = l.max(l.fnma(along, along, uu), zero);
+            let taut = l.max(l.fnma(rest, inv, one), zero);
             // A spring to a lower vertex (negative stiffness) or padding adds `+0` (every
             // term is finite and `vertex` is never `-0`).
             let k = l.max(k, zero);
-            let term = l.mul(k, l.add(along2, l.mul(taut, transverse)));
-            let term = l.select(l.le(l2, tiny2), l.mul(k, uu), term);
-            vertex = l.add(vertex, term);
+            let inner = l.select(l.le(l2, tiny2), uu, l.fma(taut, transverse, along2));
+            vertex = l.fma(k, inner, vertex);
         }
             vertex
         });
@@ -1639,12 +1678,12 @@ fn curvature_chunk<S: Lanes>(
                 let rows = unsafe { a.rows(l, s) };
                 let (nx, ny, nz) = (rows[NORMAL], rows[NORMAL + 1], rows[NORMAL + 2]);
                 let (kn, kt) = (rows[K_NORMAL], rows[K_TANGENT]);
-                let un = l.add(l.add(l.mul(dx, nx), l.mul(dy, ny)), l.mul(dz, nz));
-                let uu = l.add(l.add(l.mul(dx, dx), l.mul(dy, dy)), l.mul(dz, dz));
-                let un2 = l.mul(un, un);
-                let t = l.add(
-                    l.mul(l.mul(kn, un), un),
-                    l.mul(kt, l.max(l.sub(uu, un2), zero)),
+                let un = l.fma(dz, nz, l.fma(dy, ny, l.mul(dx, nx)));
+                let uu = l.fma(dz, dz, l.fma(dy, dy, l.mul(dx, dx)));
+                let t = l.fma(
+                    l.mul(kn, un),
+                    un,
+                    l.mul(kt, l.max(l.fnma(un, un, uu), zero)),
                 );
                 l.widen(t)
             } else {
@@ -1664,7 +1703,7 @@ fn curvature_chunk<S: Lanes>(
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
 fn curvature_chunk_avx2(
     sell: &Sell,
     x: &[Vec3],
@@ -1676,7 +1715,7 @@ fn curvature_chunk_avx2(
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f,avx512vl")]
+#[target_feature(enable = "avx2,fma,avx512f,avx512vl")]
 fn curvature_chunk_avx512(
     sell: &Sell,
     x: &[Vec3],
@@ -1712,7 +1751,7 @@ pub(crate) fn curvature(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::solver::SpringSystem;
+    use crate::solver::{SpringSystem, fused};
 
     /// A shuffled, irregular spring net (a 23 x 19 grid with diagonals and some long springs,
     /// listed in a scrambled vertex order), anchors, external forces and a few pins.
@@ -1825,28 +1864,31 @@ mod tests {
                 for s in sell.springs_of(i) {
                     let j = s.other as usize;
                     let e = x[j] - yi;
-                    let len = e.length();
+                    let len = fused::dot(e, e).sqrt();
                     let inv_len = 1.0 / len;
                     if len > f32::MIN_POSITIVE {
-                        force += e * (s.k * (len - s.rest) * inv_len);
+                        force = fused::mul_add(e, s.k * (len - s.rest) * inv_len, force);
                     }
                     if j > i {
-                        let l2 = (x[j].as_dvec3() - yi.as_dvec3()).length_squared();
+                        let e64 = x[j].as_dvec3() - yi.as_dvec3();
+                        let l2 = fused::dot64(e64, e64);
                         let len64 = len as f64;
                         let linear = len64 - s.rest as f64;
                         let st = if len > f32::MIN_POSITIVE {
-                            linear + (l2 - len64 * len64) * (0.5 * inv_len) as f64
+                            (-len64)
+                                .mul_add(len64, l2)
+                                .mul_add((0.5 * inv_len) as f64, linear)
                         } else {
                             linear
                         };
-                        energy += 0.5 * s.k as f64 * st * st;
+                        energy = (0.5 * s.k as f64 * st).mul_add(st, energy);
                     }
                 }
                 let (fa, ea) = anchors[i].force_energy(yi);
                 force += fa;
                 energy += ea;
                 force += ext[i];
-                energy -= ext[i].as_dvec3().dot(yi.as_dvec3());
+                energy -= fused::dot64(ext[i].as_dvec3(), yi.as_dvec3());
                 lanes[i % 8] += energy;
                 if pinned[i] { Vec3::ZERO } else { force }
             })
@@ -1877,7 +1919,11 @@ mod tests {
             .collect();
         let a = 0.37f32;
         let x0: Vec<Vec3> = xi.iter().map(|x| *x * 0.999).collect();
-        let stepped: Vec<Vec3> = x0.iter().zip(&d).map(|(x, d)| *x + *d * a).collect();
+        let stepped: Vec<Vec3> = x0
+            .iter()
+            .zip(&d)
+            .map(|(x, d)| fused::mul_add(*d, a, *x))
+            .collect();
         for (x, step, at) in [(&xi, None, &xi), (&x0, Some((d.as_slice(), a)), &stepped)] {
             let (want, want_energy) = reference(sell, at, &ai, &ei, &pi);
             // `Σ r·d` with the step's direction (none without a step), summed plainly.
@@ -1996,8 +2042,8 @@ mod tests {
         for i in 0..sell.n {
             let mut vertex = 0.0f32;
             for s in sell.springs_of(i).filter(|s| s.other as usize > i) {
-                vertex +=
-                    spring_curvature(&s, x[s.other as usize] - x[i], d[s.other as usize] - d[i]);
+                let (e, u) = (x[s.other as usize] - x[i], d[s.other as usize] - d[i]);
+                vertex = s.k.mul_add(spring_curvature(&s, e, u), vertex);
             }
             lanes[i % 8] += vertex as f64;
         }
@@ -2006,16 +2052,18 @@ mod tests {
         assert_eq!(got.to_bits(), want.to_bits());
     }
 
-    /// `dᵀ H d` of one spring along `e` for the relative displacement `u`, the plain way.
+    /// `dᵀ H d / k` of one spring along `e` for the relative displacement `u`, the plain way
+    /// (the caller adds `k` times it to its sum with one rounding, as the kernels do).
     fn spring_curvature(s: &crate::solver::Spring, e: Vec3, u: Vec3) -> f32 {
-        let l2 = e.length_squared();
+        let (l2, uu) = (fused::dot(e, e), fused::dot(u, u));
         if l2 <= f32::MIN_POSITIVE * f32::MIN_POSITIVE {
-            return s.k * u.length_squared();
+            return uu;
         }
         let inv_len = 1.0 / l2.sqrt();
-        let along = e.dot(u) * inv_len;
-        let transverse = (u.length_squared() - along * along).max(0.0);
-        s.k * (along * along + (1.0 - s.rest * inv_len).max(0.0) * transverse)
+        let along = fused::dot(e, u) * inv_len;
+        let transverse = (-along).mul_add(along, uu).max(0.0);
+        let taut = (-s.rest).mul_add(inv_len, 1.0).max(0.0);
+        taut.mul_add(transverse, along * along)
     }
 
     #[test]
@@ -2034,12 +2082,16 @@ mod tests {
         let mut want_d = d0.clone();
         let mut want = 0.0f64;
         for i in 0..n {
-            want_d[i] = r[i] * w[i] + want_d[i] * beta;
+            want_d[i] = fused::mul_add(want_d[i], beta, r[i] * w[i]);
             want += r[i].dot(want_d[i]) as f64;
         }
         let x0: Vec<Vec3> = (0..n).map(|i| v(i, 0.53)).collect();
         let a = 0.0371f32;
-        let want_x: Vec<Vec3> = x0.iter().zip(&d0).map(|(x, d)| *x + *d * a).collect();
+        let want_x: Vec<Vec3> = x0
+            .iter()
+            .zip(&d0)
+            .map(|(x, d)| fused::mul_add(*d, a, *x))
+            .collect();
         let bits = |v: &Vec3| v.to_array().map(f32::to_bits);
         for isa in isas() {
             for fused in [false, true] {
@@ -2110,7 +2162,7 @@ mod tests {
             let mut vertex = 0.0f32;
             for s in sell.springs_of(i).filter(|s| s.other as usize > i) {
                 let (e, u) = (xi[s.other as usize] - xi[i], d[s.other as usize] - d[i]);
-                vertex += spring_curvature(&s, e, u);
+                vertex = s.k.mul_add(spring_curvature(&s, e, u), vertex);
             }
             lanes[i % 8] += vertex as f64;
             lanes[i % 8] += ai[i].curvature(d[i]) as f64;

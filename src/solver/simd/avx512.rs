@@ -11,7 +11,7 @@ use super::avx2::Avx2;
 
 /// AVX-512 lanes; only constructed after `is_x86_feature_detected!` for AVX-512F, AVX-512VL and
 /// AVX2, and
-/// only used inside `#[target_feature(enable = "avx2,avx512f,avx512vl")]` functions (every method is
+/// only used inside `#[target_feature(enable = "avx2,fma,avx512f,avx512vl")]` functions (every method is
 /// inlined there).
 #[derive(Clone, Copy)]
 pub(crate) struct Avx512;
@@ -167,6 +167,14 @@ impl Lanes for Avx512 {
         A.mul(a, b)
     }
     #[inline(always)]
+    fn fma(self, a: Self::F, b: Self::F, c: Self::F) -> Self::F {
+        A.fma(a, b, c)
+    }
+    #[inline(always)]
+    fn fnma(self, a: Self::F, b: Self::F, c: Self::F) -> Self::F {
+        A.fnma(a, b, c)
+    }
+    #[inline(always)]
     fn div(self, a: Self::F, b: Self::F) -> Self::F {
         A.div(a, b)
     }
@@ -177,10 +185,6 @@ impl Lanes for Avx512 {
     #[inline(always)]
     fn max(self, a: Self::F, b: Self::F) -> Self::F {
         A.max(a, b)
-    }
-    #[inline(always)]
-    fn neg(self, a: Self::F) -> Self::F {
-        A.neg(a)
     }
     #[inline(always)]
     fn gt(self, a: Self::F, b: Self::F) -> Self::M {
@@ -230,6 +234,14 @@ impl Lanes for Avx512 {
     #[inline(always)]
     fn dmul(self, a: Self::D, b: Self::D) -> Self::D {
         unsafe { _mm512_mul_pd(a, b) }
+    }
+    #[inline(always)]
+    fn dfma(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D {
+        unsafe { _mm512_fmadd_pd(a, b, c) }
+    }
+    #[inline(always)]
+    fn dfnma(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D {
+        unsafe { _mm512_fnmadd_pd(a, b, c) }
     }
     #[inline(always)]
     fn dstore(self, a: Self::D) -> [f64; 8] {
