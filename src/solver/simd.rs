@@ -23,9 +23,9 @@ use rayon::prelude::*;
 
 use glam::Vec3;
 
-use super::VertexAnchor;
 use super::kernels::Sums;
 use super::sell::{LANES, PAIR_LANES, Refs, Sell};
+use super::{VertexAnchor, fused};
 
 /// Eight lanes of f32 (and f64) arithmetic.
 pub(crate) trait Lanes: Copy {
@@ -1363,23 +1363,23 @@ fn force_chunk<S: Lanes, const STEP: bool>(
                     l.select(pinned, zero, fy),
                     l.select(pinned, zero, fz),
                 );
-                let ff = l.add(l.add(l.mul(fx, fx), l.mul(fy, fy)), l.mul(fz, fz));
+                let ff = l.fma(fz, fz, l.fma(fy, fy, l.mul(fx, fx)));
                 rr = l.dadd(rr, l.widen(ff));
                 // SAFETY: `out` holds eight vectors.
                 let [ox, oy, oz] = unsafe { l.load3(p) };
-                let fo = l.add(l.add(l.mul(fx, ox), l.mul(fy, oy)), l.mul(fz, oz));
+                let fo = l.fma(fz, oz, l.fma(fy, oy, l.mul(fx, ox)));
                 rzr = l.dadd(rzr, l.widen(l.mul(w, ff)));
                 rz_old = l.dadd(rz_old, l.widen(l.mul(w, fo)));
                 if let Some(d) = step_dir {
                     // SAFETY: `d` has `n` vectors (asserted above); this slice's eight are
                     // in bounds.
                     let [dx, dy, dz] = unsafe { l.load3(d.as_ptr().add(base).cast::<f32>()) };
-                    let fd = l.add(l.add(l.mul(fx, dx), l.mul(fy, dy)), l.mul(fz, dz));
+                    let fd = l.fma(fz, dz, l.fma(fy, dy, l.mul(fx, dx)));
                     rd = l.dadd(rd, l.widen(fd));
                 }
                 (fx, fy, fz)
             } else {
-                let ff = l.add(l.add(l.mul(fx, fx), l.mul(fy, fy)), l.mul(fz, fz));
+                let ff = l.fma(fz, fz, l.fma(fy, fy, l.mul(fx, fx)));
                 rr = l.dadd(rr, l.widen(ff));
                 (fx, fy, fz)
             };
@@ -1399,13 +1399,13 @@ fn force_chunk<S: Lanes, const STEP: bool>(
                 Vec3::new(fx[lane], fy[lane], fz[lane])
             };
             e8[lane] = energy[lane];
-            let ff = force.dot(force);
+            let ff = fused::dot(force, force);
             rr8[lane] = ff as f64;
             if let Some(w) = w {
                 rzr8[lane] = (w[i] * ff) as f64;
-                rzo8[lane] = (w[i] * force.dot(*slot)) as f64;
+                rzo8[lane] = (w[i] * fused::dot(force, *slot)) as f64;
                 if let Some(d) = step_dir {
-                    rd8[lane] = force.dot(d[i]) as f64;
+                    rd8[lane] = fused::dot(force, d[i]) as f64;
                 }
             }
             *slot = force;
@@ -1751,7 +1751,7 @@ pub(crate) fn curvature(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::solver::{SpringSystem, fused};
+    use crate::solver::SpringSystem;
 
     /// A shuffled, irregular spring net (a 23 x 19 grid with diagonals and some long springs,
     /// listed in a scrambled vertex order), anchors, external forces and a few pins.
@@ -1928,7 +1928,10 @@ mod tests {
             let (want, want_energy) = reference(sell, at, &ai, &ei, &pi);
             // `Σ r·d` with the step's direction (none without a step), summed plainly.
             let want_rd: f64 = step.map_or(0.0, |(d, _)| {
-                want.iter().zip(d).map(|(f, d)| f64::from(f.dot(*d))).sum()
+                want.iter()
+                    .zip(d)
+                    .map(|(f, d)| f64::from(fused::dot(*f, *d)))
+                    .sum()
             });
             let mut rd_bits = None;
             for isa in isas() {
