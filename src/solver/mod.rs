@@ -11,10 +11,11 @@ pub(crate) mod team;
 pub use reorder::morton_order;
 
 /// The SIMD path the relaxation kernels take in this process: `"avx2"` where the CPU has
-/// AVX2 (x86-64, detected at run time), else `"scalar"` (portable code); `"avx512"` only when
-/// the environment variable `DERMIS_SIMD=avx512` asks for it and the CPU has AVX-512F/VL.
-/// `DERMIS_SIMD=scalar` or `avx2` caps it. Every path gives the same bits; this is for
-/// reports (`dermis bench` prints it) and for comparing paths.
+/// AVX2 and FMA (x86-64, detected at run time), else `"scalar"` (portable code); `"avx512"`
+/// only when the environment variable `DERMIS_SIMD=avx512` asks for it and the CPU has
+/// AVX-512F/VL. `DERMIS_SIMD=scalar` or `avx2` caps it. Every path gives the same bits (the
+/// portable code takes the kernels' fused multiply-adds from `mul_add`, which is slow on a CPU
+/// without FMA); this is for reports (`dermis bench` prints it) and for comparing paths.
 ///
 /// ```
 /// assert!(["scalar", "avx2", "avx512"].contains(&dermis::solver::kernel_path()));
@@ -59,9 +60,9 @@ pub struct Spring {
     pub rest: f32,
 }
 
-/// The kernels' fused arithmetic on single vectors: the operations of their eight lanes
-/// ([`simd`]), each product and sum rounded where theirs are, so per-vertex code (a partial
-/// slice, the tests' plain loops) gives their bits.
+/// The kernels' fused dot products on single vectors: the operations of their eight lanes
+/// ([`simd`]), rounded where theirs are, so per-vertex code (a partial slice, the tests' plain
+/// loops) gives their bits. (Fused `a s + c` per component is glam's `mul_add`.)
 pub(crate) mod fused {
     use glam::{DVec3, Vec3};
 
@@ -75,26 +76,6 @@ pub(crate) mod fused {
     #[inline]
     pub(crate) fn dot64(a: DVec3, b: DVec3) -> f64 {
         a.z.mul_add(b.z, a.y.mul_add(b.y, a.x * b.x))
-    }
-
-    /// `a s + c` per component, each rounded once.
-    #[inline]
-    pub(crate) fn mul_add(a: Vec3, s: f32, c: Vec3) -> Vec3 {
-        Vec3::new(
-            a.x.mul_add(s, c.x),
-            a.y.mul_add(s, c.y),
-            a.z.mul_add(s, c.z),
-        )
-    }
-
-    /// [`mul_add`] in f64.
-    #[inline]
-    pub(crate) fn mul_add64(a: DVec3, s: f64, c: DVec3) -> DVec3 {
-        DVec3::new(
-            a.x.mul_add(s, c.x),
-            a.y.mul_add(s, c.y),
-            a.z.mul_add(s, c.z),
-        )
     }
 }
 
@@ -127,14 +108,14 @@ impl VertexAnchor {
         let d = x - self.target;
         let n = self.normal;
         let dn = fused::dot(d, n);
-        let dt = fused::mul_add(n, -dn, d);
+        let dt = n.mul_add(Vec3::splat(-dn), d);
         let kdn = self.k_normal * dn;
-        let force = -fused::mul_add(n, kdn, dt * self.k_tangent);
+        let force = -n.mul_add(Vec3::splat(kdn), dt * self.k_tangent);
         // Energy in f64 from the exact difference, for the line search's sake.
         let d64 = x.as_dvec3() - self.target.as_dvec3();
         let n64 = n.as_dvec3();
         let dn64 = fused::dot64(d64, n64);
-        let p = fused::mul_add64(n64, -dn64, d64);
+        let p = n64.mul_add(glam::DVec3::splat(-dn64), d64);
         let tangent = 0.5 * self.k_tangent as f64 * fused::dot64(p, p);
         let energy = (0.5 * self.k_normal as f64 * dn64).mul_add(dn64, tangent);
         (force, energy)

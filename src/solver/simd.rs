@@ -1867,7 +1867,7 @@ mod tests {
                     let len = fused::dot(e, e).sqrt();
                     let inv_len = 1.0 / len;
                     if len > f32::MIN_POSITIVE {
-                        force = fused::mul_add(e, s.k * (len - s.rest) * inv_len, force);
+                        force = e.mul_add(Vec3::splat(s.k * (len - s.rest) * inv_len), force);
                     }
                     if j > i {
                         let e64 = x[j].as_dvec3() - yi.as_dvec3();
@@ -1922,7 +1922,7 @@ mod tests {
         let stepped: Vec<Vec3> = x0
             .iter()
             .zip(&d)
-            .map(|(x, d)| fused::mul_add(*d, a, *x))
+            .map(|(x, d)| d.mul_add(Vec3::splat(a), *x))
             .collect();
         for (x, step, at) in [(&xi, None, &xi), (&x0, Some((d.as_slice(), a)), &stepped)] {
             let (want, want_energy) = reference(sell, at, &ai, &ei, &pi);
@@ -2085,7 +2085,7 @@ mod tests {
         let mut want_d = d0.clone();
         let mut want = 0.0f64;
         for i in 0..n {
-            want_d[i] = fused::mul_add(want_d[i], beta, r[i] * w[i]);
+            want_d[i] = want_d[i].mul_add(Vec3::splat(beta), r[i] * w[i]);
             want += r[i].dot(want_d[i]) as f64;
         }
         let x0: Vec<Vec3> = (0..n).map(|i| v(i, 0.53)).collect();
@@ -2093,7 +2093,7 @@ mod tests {
         let want_x: Vec<Vec3> = x0
             .iter()
             .zip(&d0)
-            .map(|(x, d)| fused::mul_add(*d, a, *x))
+            .map(|(x, d)| d.mul_add(Vec3::splat(a), *x))
             .collect();
         let bits = |v: &Vec3| v.to_array().map(f32::to_bits);
         for isa in isas() {
