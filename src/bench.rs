@@ -87,7 +87,7 @@ pub fn calibrate(quick: bool) -> Machine {
     }
     let spring_ns = best * 1e9 / (rounds * (m - 1)) as f64;
     Machine {
-        threads: rayon::current_num_threads(),
+        threads,
         bandwidth_gb_s,
         spring_ns,
         kernels: crate::solver::kernel_path(),

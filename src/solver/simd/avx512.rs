@@ -9,10 +9,9 @@ use std::arch::x86_64::*;
 use super::Lanes;
 use super::avx2::Avx2;
 
-/// AVX-512 lanes; only constructed after `is_x86_feature_detected!` for AVX-512F, AVX-512VL, FMA and
-/// AVX2, and
-/// only used inside `#[target_feature(enable = "avx2,fma,avx512f,avx512vl")]` functions (every method is
-/// inlined there).
+/// AVX-512 lanes; only constructed after `is_x86_feature_detected!` for AVX-512F, AVX-512VL,
+/// FMA and AVX2, and only used inside `#[target_feature(enable = "avx2,fma,avx512f,avx512vl")]`
+/// functions (every method is inlined there).
 #[derive(Clone, Copy)]
 pub(crate) struct Avx512;
 
