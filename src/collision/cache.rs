@@ -41,7 +41,12 @@ pub(crate) struct Patch {
     at: Vec3,
     /// The collider's travel when the patch was built, m.
     travel_at: f64,
+    /// After a certified answer: how much farther than the answer's triangle every other
+    /// triangle was at the query point, less the rounding of both distances, m (0: unknown).
+    pub(crate) margin: f32,
 }
+
+const _: () = assert!(size_of::<Patch>() == 128);
 
 impl Patch {
     pub(crate) const NEW: Self = Self {
@@ -52,10 +57,12 @@ impl Patch {
         best: 0,
         at: Vec3::ZERO,
         travel_at: 0.0,
+        margin: 0.0,
     };
 
     pub(crate) fn clear(&mut self) {
         self.len = 0;
+        self.margin = 0.0;
     }
 
     /// Bound on how far the point `p` (rest frame) and the surface moved since the patch was

@@ -53,7 +53,8 @@ pub struct SurfaceProjection {
     pub point: Vec3,
     /// Unit direction along which the query point leaves the surface: away from the surface
     /// for an outside point, towards it for an inside one (the outward feature normal when the
-    /// point lies on the surface).
+    /// point lies on the surface). When the closest point lies inside a mesh face, that face's
+    /// outward normal itself, bit for bit the same wherever over the face the point is.
     pub normal: Vec3,
     /// Distance to the surface, negative inside, m.
     pub signed_distance: f32,
@@ -783,6 +784,7 @@ impl MeshShape {
         location: TrianglePointLocation,
     ) -> SurfaceProjection {
         let idx = self.indices[t as usize];
+        let on_face = matches!(location, TrianglePointLocation::OnFace(..));
         let feature_normal = match location {
             TrianglePointLocation::OnEdge(i, _) => {
                 let other = self.across[t as usize][i as usize];
@@ -794,7 +796,11 @@ impl MeshShape {
         let coords = location
             .barycentric_coordinates()
             .map_or(Vec3::splat(1.0 / 3.0), Vec3::from_array);
-        oriented(p, point, feature_normal, t, coords)
+        // Off a face's edges the closest point's direction is the face normal itself: taken
+        // as is, not from the rounded difference `p − point` (a nonzero normal: the triangle
+        // is not degenerate).
+        let exact = on_face && feature_normal != Vec3::ZERO;
+        oriented(p, point, feature_normal, exact, t, coords)
     }
 
     /// Distance from `p` to triangle `t` (lean closest-point arithmetic, without parry's
@@ -995,7 +1001,23 @@ impl MeshShape {
         let hi = within.max(evaluated).max(b + 1);
         let (t, point, location) =
             self.parry_choice(p, (0..hi).map(|k| (lean[k], patch.tris[k])))?;
-        patch.best = (0..len).position(|k| patch.tris[k] == t).unwrap_or(0) as u8;
+        let kt = (0..len).position(|k| patch.tris[k] == t).unwrap_or(0);
+        // How much farther every other triangle is (its lean distance where computed, its
+        // bound otherwise; the rest of the mesh by the gap), before any rounding allowance
+        // (see `hold_radius`).
+        let second = (0..len)
+            .filter(|&k| k != kt)
+            .map(|k| {
+                if lean[k].is_nan() {
+                    batches.known(k).unwrap_or(patch.dist[k] - slack_m)
+                } else {
+                    lean[k]
+                }
+            })
+            .fold(patch.gap - slack_m, f32::min);
+        let margin = second - lean[kt];
+        patch.best = kt as u8;
+        patch.margin = if margin > 0.0 { margin } else { 0.0 };
         Some(self.finish(p, t, point, location))
     }
 }
@@ -1035,6 +1057,12 @@ impl<'a> Batches<'a> {
             return self.fill(k);
         }
         self.values[k]
+    }
+
+    /// The lean distance to the patch's triangle `k` if its batch was computed.
+    #[inline]
+    fn known(&self, k: usize) -> Option<f32> {
+        (self.done >> (k / lean::LANES) & 1 == 1).then(|| self.values[k])
     }
 
     /// Computes the batch holding triangle `k` (or `k` alone without the wide path) and
@@ -1117,18 +1145,22 @@ fn triangle_distance_sq(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> f32 {
     (ap - ab * (vb * denom) - ac * (vc * denom)).length_squared()
 }
 
-/// Signed distance and push direction from the feature normal.
+/// Signed distance and push direction from the feature normal; `exact`: the point projects
+/// inside a face, whose (outward, unit) normal is then the push direction, inside or out.
 fn oriented(
     p: Vec3,
     point: Vec3,
     feature_normal: Vec3,
+    exact: bool,
     part: u32,
     coords: Vec3,
 ) -> SurfaceProjection {
     let d = p - point;
     let dist = d.length();
     let inside = d.dot(feature_normal) < 0.0;
-    let normal = if dist > 1e-12 {
+    let normal = if exact {
+        feature_normal
+    } else if dist > 1e-12 {
         if inside { -d / dist } else { d / dist }
     } else {
         feature_normal

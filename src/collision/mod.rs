@@ -315,6 +315,11 @@ struct Reach {
     travel_at: f64,
     /// Lower bound of the distance from `at` to every collider surface then, m (0: none).
     safe: f32,
+    /// For a vertex touching one mesh collider inside a face (`reserve` is `-∞`): how far it
+    /// may move from `at`, no collider moving, before resolving it could change its position or
+    /// what the solver sees of its contact (the face, so the normal, and the contact band),
+    /// m; 0 otherwise. See [`hold_radius`].
+    hold: f32,
 }
 
 impl Reach {
@@ -323,6 +328,7 @@ impl Reach {
         reserve: f32::NEG_INFINITY,
         travel_at: 0.0,
         safe: 0.0,
+        hold: 0.0,
     };
 
     /// Whether a vertex now at `p`, the colliders' summed travel now `travel`, is provably
@@ -458,6 +464,9 @@ pub struct SkinCollision {
     /// Each collider's identity and travel at the last pass (another identity or a smaller
     /// travel means it was replaced).
     travel_seen: Vec<(u64, f64)>,
+    /// Whether vertices touching inside a face may be held ([`Reach::hold`]); off only in tests
+    /// that compare against resolving every touching vertex.
+    face_holds: bool,
 }
 
 /// The substeps of the frame in progress.
@@ -504,6 +513,7 @@ impl SkinCollision {
             active: Vec::new(),
             active_owner: Vec::new(),
             held_vertices: Vec::new(),
+            face_holds: true,
         })
     }
 
@@ -1121,6 +1131,7 @@ impl SkinCollision {
             travel_sum: travel.iter().sum(),
             config: &self.config,
             swept: false,
+            face_holds: self.face_holds,
         };
         let per_chunk: Vec<ChunkPass> = x
             .par_chunks_mut(CHUNK)
@@ -1291,6 +1302,8 @@ struct Ctx<'a> {
     travel_sum: f64,
     config: &'a ContactConfig,
     swept: bool,
+    /// Whether a touching vertex may get a hold.
+    face_holds: bool,
 }
 
 impl Ctx<'_> {
@@ -1334,6 +1347,9 @@ impl Ctx<'_> {
         }
         let mut touching = Contact::NONE;
         let mut unresolved = false;
+        // The last round's touch inside a mesh face, certified: (collider, signed distance,
+        // margin of its triangle over every other, largest rest-frame coordinate).
+        let mut face: Option<(usize, f32, f32, f32)> = None;
         // Rounds 0..max_rounds push; one more round only checks.
         for round in 0..=cfg.max_rounds {
             let check_only = round == cfg.max_rounds;
@@ -1341,6 +1357,7 @@ impl Ctx<'_> {
             // The contacts of the last round, which saw the final position.
             state.touches = [Touch::NONE; TOUCHES];
             let mut touches = 0;
+            face = None;
             for (c, col) in self.colliders.iter().enumerate() {
                 let slot = &mut slots[c];
                 let travel = self.travel[c];
@@ -1358,6 +1375,7 @@ impl Ctx<'_> {
                 }
                 let margin = (0.25 * band).max(1e-5);
                 let (proj, answer) = slot.project(&mut patches[c], col, local, travel, margin);
+                let certified = answer == Answer::Certified;
                 match answer {
                     Answer::Certified => counters.certified += 1,
                     Answer::Searched { hit } => {
@@ -1386,6 +1404,13 @@ impl Ctx<'_> {
                         normal: pose.transform_vector(proj.normal),
                     };
                     touches += 1;
+                    // Inside a face (no barycentric coordinate zero) the normal is the face's.
+                    face = (certified && proj.coords.min_element() > 0.0).then_some((
+                        c,
+                        s,
+                        patches[c].margin,
+                        local.abs().max_element(),
+                    ));
                 }
                 if state.anchor.collider == NONE {
                     state.anchor = contact;
@@ -1437,9 +1462,30 @@ impl Ctx<'_> {
                 .max(0.0)
         };
         // A vertex that touched something is resolved again by the next pass (its contact and
-        // touches must be recomputed even if it leaves). The rounding allowance covers the f32
+        // touches must be recomputed even if it leaves), unless it is held on a face: then the
+        // solver-order passes skip it within its hold (see `project`). The rounding allowance covers the f32
         // distances of the skip test and the bound's own rounding to f32.
         let reserve = safe - band as f64 - 1e-5 * (p.abs().max_element() as f64 + safe) - 1e-9;
+        let hold = match face {
+            Some((c, s, margin, local))
+                if self.face_holds
+                    && cfg.friction == 0.0
+                    && !unresolved
+                    && touching.collider == c as u32
+                    && state.touches[1].collider == NONE =>
+            {
+                let others = slots
+                    .iter()
+                    .zip(self.travel)
+                    .enumerate()
+                    .filter(|&(k, _)| k != c)
+                    .map(|(_, (s, &t))| s.lower_bound(*p, t))
+                    .fold(f64::INFINITY, f64::min);
+                let scale = p.abs().max_element().max(local) + s.abs();
+                hold_radius(scale, (h, tol, band), s, margin, others)
+            }
+            _ => 0.0,
+        };
         *reach = Reach {
             at: *p,
             reserve: if touching.collider == NONE && !unresolved && reserve > 0.0 {
@@ -1449,10 +1495,35 @@ impl Ctx<'_> {
             },
             travel_at: self.travel_sum,
             safe: safe as f32,
+            hold,
         };
         *last = *p;
         (*p != start, unresolved)
     }
+}
+
+/// How far a vertex touching one mesh collider inside a face may move, no collider
+/// moving, with resolving it changing nothing the solver sees (0: not at all). Its signed
+/// distance `s` (thickness `h`, tolerance `tol`, contact band `band`) stays within `tol` of `h`
+/// (no push, no lift, still touching), its triangle stays the closest by `margin` (so it
+/// projects inside that face: any edge or corner is shared with a triangle as close), whose
+/// normal is the contact's, and every other collider (lower bound `others`) stays beyond the
+/// band. Each less its rounding allowance relative to `scale` (the largest coordinate, world
+/// or rest frame, plus the distance): the distances' f32 rounding (a few ulps, allowed 1e-6),
+/// the tie rounding of the patch answers (1e-5), and the reserve's own (1e-5).
+fn hold_radius(
+    scale: f32,
+    (h, tol, band): (f32, f32, f32),
+    s: f32,
+    margin: f32,
+    others: f64,
+) -> f32 {
+    let scale = f64::from(scale);
+    let surface = f64::from(tol) - f64::from(s - h).abs() - 2e-6 * scale;
+    let closest = 0.5 * (f64::from(margin) - 4e-6 * scale);
+    let clear = others - f64::from(band) - 1e-5 * (scale + others.abs()) - 1e-9;
+    let hold = surface.min(closest).min(clear);
+    if hold > 0.0 { hold as f32 } else { 0.0 }
 }
 
 /// The substeps a largest reaching motion `motion` asks for, before the clamp to

@@ -13,6 +13,9 @@
 //! The test is conservative (it implies [`Reach::skips`]), so a pass resolves a superset of the
 //! vertices the caller-order pass resolves, and resolving a vertex the reserve would have
 //! skipped finds exactly nothing to do: the positions and contacts are the same either way.
+//! The one exception is a vertex held on a face ([`Reach::hold`]): touching, the caller-order
+//! pass resolves it, but the test here may skip it, and the pass then reports it as touching
+//! with the contact it had, which is what resolving it would find (see `hold_radius`).
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -36,6 +39,9 @@ pub(super) struct View {
     prev: Vec<Vec3>,
     /// Whether `prev` holds the last positions (then [`SkinCollision::last`] is stale).
     holds_last: bool,
+    /// The vertices whose test is a hold ([`Reach::hold`]), by increasing internal index:
+    /// touching, they are reported as such when the test skips them.
+    holders: Vec<u32>,
 }
 
 impl View {
@@ -46,9 +52,19 @@ impl View {
     }
 }
 
+/// Whether the test of a vertex whose reach is `r` is its hold: it touches one mesh collider
+/// inside a face, and no collider moved since (the colliders' summed travel `travel`).
+fn holds(r: &Reach, travel: f64) -> bool {
+    r.hold > 0.0 && travel == r.travel_at && r.at.is_finite()
+}
+
 /// The skip test of a vertex whose reach is `r`, the colliders' summed travel `travel`:
-/// `(at, limit²)` such that `|p − at|² ≤ limit²` in f32 implies `r.skips(p, travel)`.
+/// `(at, limit²)` such that `|p − at|² ≤ limit²` in f32 implies `r.skips(p, travel)` or, for a
+/// vertex held on a face ([`holds`]), that resolving it would change nothing the solver sees.
 fn test_of(r: &Reach, travel: f64) -> (Vec3, f32) {
+    if holds(r, travel) {
+        return (r.at, (f64::from(r.hold) * (1.0 - 4e-6)).powi(2) as f32);
+    }
     let limit = r.reserve as f64 / (1.0 + 1e-5) - (travel - r.travel_at);
     // The relative margin (4e-6) covers the f32 rounding of the squared distance, of its
     // square root in `skips` and of `limit²` itself (a few 1e-7 together).
@@ -73,6 +89,8 @@ struct Resolved {
     moved: bool,
     unresolved: bool,
     touching: bool,
+    /// Its test is a hold ([`holds`]).
+    holds: bool,
     test: (Vec3, f32),
 }
 
@@ -184,6 +202,23 @@ impl SkinCollision {
                     .map(|(i, last)| (i, self.rank_of[i as usize], last)),
             );
         }
+        // The held vertices the test skipped (`listed` and `holders` both by increasing
+        // internal index): still touching, as the last pass left them.
+        let skipped_holders: Vec<u32> = {
+            let mut k = 0;
+            self.view
+                .holders
+                .iter()
+                .copied()
+                .filter(|&i| {
+                    while k < listed.len() && listed[k].0 < i {
+                        k += 1;
+                    }
+                    k == listed.len() || listed[k].0 != i
+                })
+                .collect()
+        };
+        counters.contacts += skipped_holders.len() as u64;
         let chunks = n.div_ceil(CHUNK);
         let mut bounds = vec![0usize; chunks + 1];
         for &(_, o, _) in &listed {
@@ -207,6 +242,7 @@ impl SkinCollision {
             travel_sum,
             config: &self.config,
             swept: true,
+            face_holds: self.face_holds,
         };
         let xs = &*x;
         let mut resolved = vec![(Vec::new(), Counters::default()); busy.len()];
@@ -257,6 +293,7 @@ impl SkinCollision {
                             moved,
                             unresolved,
                             touching: states[k].touches[0].collider != NONE,
+                            holds: holds(&reach[k], travel_sum),
                             test: test_of(&reach[k], travel_sum),
                         }
                     })
@@ -274,8 +311,10 @@ impl SkinCollision {
             counters,
             unresolved: Vec::new(),
         };
-        // The touching vertices go back to the solver's order through their places `j`.
+        // The touching vertices go back to the solver's order through their places `j`, so do
+        // the new holders.
         let mut touches = vec![None; listed.len()];
+        let mut held = vec![false; listed.len()];
         let view = &mut self.view;
         for (done, counters) in resolved {
             pass.counters.add(&counters);
@@ -293,11 +332,23 @@ impl SkinCollision {
                 if r.touching {
                     touches[r.j as usize] = Some((r.i, r.o));
                 }
+                held[r.j as usize] = r.holds;
             }
         }
         // Rare: a sort only when some vertex stayed unresolved.
         pass.unresolved.sort_unstable();
-        let touching = touches.into_iter().flatten().collect();
+        // The resolved and the skipped holders, and the touching ones, by internal index.
+        let resolved_holders = listed
+            .iter()
+            .zip(&held)
+            .filter_map(|(&(i, _, _), &h)| h.then_some(i));
+        view.holders = merged(resolved_holders, skipped_holders.iter().copied(), |&i| i);
+        let rank_of = &self.rank_of;
+        let touching = merged(
+            touches.into_iter().flatten(),
+            skipped_holders.iter().map(|&i| (i, rank_of[i as usize])),
+            |&(i, _)| i,
+        );
         (pass, touching)
     }
 
@@ -331,8 +382,39 @@ impl SkinCollision {
                 });
             view.holds_last = true;
         }
+        view.holders = order
+            .par_chunks(CHUNK)
+            .enumerate()
+            .map(|(c, order)| {
+                (c * CHUNK..)
+                    .zip(order)
+                    .filter(|&(_, &o)| holds(&reach[o as usize], travel_sum))
+                    .map(|(i, _)| i as u32)
+                    .collect::<Vec<u32>>()
+            })
+            .flatten_iter()
+            .collect();
         view.key.clone_from(&self.travel_seen);
         view.valid = true;
+    }
+}
+
+/// Two lists each sorted by `key` (no key in both), merged in that order.
+fn merged<T>(
+    a: impl IntoIterator<Item = T>,
+    b: impl IntoIterator<Item = T>,
+    key: impl Fn(&T) -> u32,
+) -> Vec<T> {
+    let (mut a, mut b) = (a.into_iter().peekable(), b.into_iter().peekable());
+    let mut out = Vec::with_capacity(a.size_hint().0 + b.size_hint().0);
+    loop {
+        let take_a = match (a.peek(), b.peek()) {
+            (Some(x), Some(y)) => key(x) < key(y),
+            (Some(_), None) => true,
+            (None, Some(_)) => false,
+            (None, None) => return out,
+        };
+        out.extend(if take_a { a.next() } else { b.next() });
     }
 }
 

@@ -707,3 +707,28 @@ fn frame_deformation_is_the_largest_displacement_since_the_last_frame() {
     let expected = largest(&two, &three);
     assert!((f64::from(c.frame_deform_m()) - expected).abs() <= 1e-6 * expected);
 }
+
+#[test]
+fn a_point_over_a_face_leaves_along_the_face_normal_exactly() {
+    // Inside a face the closest point's direction is the face's normal: the projection gives
+    // it bit for bit, from outside and from inside (outward both ways), not the rounded
+    // direction of `p − point`.
+    let (v, t) = muscle(12, 16);
+    let c = ColliderMesh::from_mesh(v.clone(), t.clone()).unwrap();
+    let mut faces = 0;
+    for (k, tri) in t.iter().enumerate().step_by(7) {
+        let [a, b, cc] = tri.map(|i| v[i as usize]);
+        let n = (b - a).cross(cc - a).normalize_or_zero();
+        let centre = (a + b + cc) / 3.0;
+        for offset in [2e-3, -1e-4] {
+            let p = c.project_point(centre + n * offset);
+            if p.part != k as u32 {
+                continue; // Another triangle is closer (a concave spot).
+            }
+            faces += 1;
+            assert_eq!(p.normal, n, "triangle {k}, offset {offset}");
+            assert_eq!(p.signed_distance > 0.0, offset > 0.0);
+        }
+    }
+    assert!(faces > t.len() / 8, "{faces} faces checked");
+}
