@@ -1004,7 +1004,7 @@ impl MeshShape {
         let kt = (0..len).position(|k| patch.tris[k] == t).unwrap_or(0);
         // How much farther every other triangle is (its lean distance where computed, its
         // bound otherwise; the rest of the mesh by the gap), before any rounding allowance
-        // (see `hold_radius`).
+        // (see `hold_of`).
         let second = (0..len)
             .filter(|&k| k != kt)
             .map(|k| {

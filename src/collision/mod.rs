@@ -316,9 +316,11 @@ struct Reach {
     /// Lower bound of the distance from `at` to every collider surface then, m (0: none).
     safe: f32,
     /// For a vertex touching one mesh collider inside a face (`reserve` is `-∞`): how far it
-    /// may move from `at`, no collider moving, before resolving it could change its position or
-    /// what the solver sees of its contact (the face, so the normal, and the contact band),
-    /// m; 0 otherwise. See [`hold_radius`].
+    /// may move from `at`, no collider moving, and its triangle stay the closest (so its
+    /// contact's face and normal stay) and every other collider beyond the band, m; 0
+    /// otherwise. Within it, resolving the vertex changes nothing the solver sees as long as
+    /// its signed distance stays within the tolerance of the thickness
+    /// ([`VertexState::slab`]). See [`hold_of`].
     hold: f32,
 }
 
@@ -359,6 +361,9 @@ struct VertexState {
     /// Colliders the solver holds this vertex against ([`Projection::hold`]): the next
     /// projection keeps it at the thickness from them, from outside as well.
     held: [u32; TOUCHES],
+    /// With a hold ([`Reach::hold`]): the range of `n · (p − at)` (`n` the touch's normal)
+    /// over which its signed distance stays within the tolerance of the thickness, m.
+    slab: [f32; 2],
 }
 
 impl VertexState {
@@ -367,6 +372,7 @@ impl VertexState {
         anchor: Contact::NONE,
         touches: [Touch::NONE; TOUCHES],
         held: [NONE; TOUCHES],
+        slab: [0.0; 2],
     };
 }
 
@@ -1347,9 +1353,10 @@ impl Ctx<'_> {
         }
         let mut touching = Contact::NONE;
         let mut unresolved = false;
-        // The last round's touch inside a mesh face, certified: (collider, signed distance,
-        // margin of its triangle over every other, largest rest-frame coordinate).
-        let mut face: Option<(usize, f32, f32, f32)> = None;
+        // The last round's contact in the band: (collider, signed distance, largest rest-frame
+        // coordinate, and inside a mesh face, certified, the margin of its triangle over every
+        // other).
+        let mut in_band: Option<(usize, f32, f32, Option<f32>)> = None;
         // Rounds 0..max_rounds push; one more round only checks.
         for round in 0..=cfg.max_rounds {
             let check_only = round == cfg.max_rounds;
@@ -1357,7 +1364,7 @@ impl Ctx<'_> {
             // The contacts of the last round, which saw the final position.
             state.touches = [Touch::NONE; TOUCHES];
             let mut touches = 0;
-            face = None;
+            in_band = None;
             for (c, col) in self.colliders.iter().enumerate() {
                 let slot = &mut slots[c];
                 let travel = self.travel[c];
@@ -1394,6 +1401,14 @@ impl Ctx<'_> {
                     coords: proj.coords,
                 };
                 touching = contact;
+                // Inside a face (no barycentric coordinate zero) the normal is the face's.
+                let face = certified && proj.coords.min_element() > 0.0;
+                in_band = Some((
+                    c,
+                    s,
+                    local.abs().max_element(),
+                    face.then_some(patches[c].margin),
+                ));
                 // Only a contact at the surface goes to the solver: one in the band but off the
                 // surface would be held there and snapped onto it by the next projection (the
                 // lift below), a pull that the next iteration releases and the one after holds
@@ -1404,13 +1419,6 @@ impl Ctx<'_> {
                         normal: pose.transform_vector(proj.normal),
                     };
                     touches += 1;
-                    // Inside a face (no barycentric coordinate zero) the normal is the face's.
-                    face = (certified && proj.coords.min_element() > 0.0).then_some((
-                        c,
-                        s,
-                        patches[c].margin,
-                        local.abs().max_element(),
-                    ));
                 }
                 if state.anchor.collider == NONE {
                     state.anchor = contact;
@@ -1466,12 +1474,13 @@ impl Ctx<'_> {
         // solver-order passes skip it within its hold (see `project`). The rounding allowance covers the f32
         // distances of the skip test and the bound's own rounding to f32.
         let reserve = safe - band as f64 - 1e-5 * (p.abs().max_element() as f64 + safe) - 1e-9;
-        let hold = match face {
-            Some((c, s, margin, local))
+        let hold = match in_band {
+            Some((c, s, local, margin))
                 if self.face_holds
                     && cfg.friction == 0.0
                     && !unresolved
                     && touching.collider == c as u32
+                    && state.touches[0].collider == c as u32
                     && state.touches[1].collider == NONE =>
             {
                 let others = slots
@@ -1482,10 +1491,11 @@ impl Ctx<'_> {
                     .map(|(_, (s, &t))| s.lower_bound(*p, t))
                     .fold(f64::INFINITY, f64::min);
                 let scale = p.abs().max_element().max(local) + s.abs();
-                hold_radius(scale, (h, tol, band), s, margin, others)
+                margin.and_then(|m| hold_of(scale, (h, tol, band), s, m, others))
             }
-            _ => 0.0,
+            _ => None,
         };
+        state.slab = hold.map_or([0.0; 2], |h| h.1);
         *reach = Reach {
             at: *p,
             reserve: if touching.collider == NONE && !unresolved && reserve > 0.0 {
@@ -1495,35 +1505,48 @@ impl Ctx<'_> {
             },
             travel_at: self.travel_sum,
             safe: safe as f32,
-            hold,
+            hold: hold.map_or(0.0, |h| h.0),
         };
         *last = *p;
         (*p != start, unresolved)
     }
 }
 
-/// How far a vertex touching one mesh collider inside a face may move, no collider
-/// moving, with resolving it changing nothing the solver sees (0: not at all). Its signed
-/// distance `s` (thickness `h`, tolerance `tol`, contact band `band`) stays within `tol` of `h`
-/// (no push, no lift, still touching), its triangle stays the closest by `margin` (so it
-/// projects inside that face: any edge or corner is shared with a triangle as close), whose
-/// normal is the contact's, and every other collider (lower bound `others`) stays beyond the
-/// band. Each less its rounding allowance relative to `scale` (the largest coordinate, world
-/// or rest frame, plus the distance): the distances' f32 rounding (a few ulps, allowed 1e-6),
-/// the tie rounding of the patch answers (1e-5), and the reserve's own (1e-5).
-fn hold_radius(
+/// The hold of a vertex touching one mesh collider inside a face, no collider moving: the
+/// radius within which its triangle stays the closest by half the patch `margin` (so it
+/// projects inside that face, since any edge or corner of a closed mesh is shared with a
+/// triangle as close, and its normal is the contact's) and every other collider (lower bound
+/// `others`) beyond the band `band`; and the range of `n · (p − at)` (`n` the face normal) over
+/// which its signed distance, `s` now, stays within the tolerance `tol` of the thickness `h`
+/// (there the distance to the face's plane, linear along `n`): no push, no lift, still
+/// touching. `None`: no hold. Each bound less its rounding allowance relative to `scale` (the
+/// largest coordinate, world or rest frame, plus the distance): the f32 distances a few ulps
+/// (allowed 1e-6 each), the tie rounding of the patch answers (1e-5), the reserve's own
+/// (1e-5), and the normal's rounding along the step (1e-5 of the radius).
+fn hold_of(
     scale: f32,
     (h, tol, band): (f32, f32, f32),
     s: f32,
     margin: f32,
     others: f64,
-) -> f32 {
+) -> Option<(f32, [f32; 2])> {
     let scale = f64::from(scale);
-    let surface = f64::from(tol) - f64::from(s - h).abs() - 2e-6 * scale;
     let closest = 0.5 * (f64::from(margin) - 4e-6 * scale);
-    let clear = others - f64::from(band) - 1e-5 * (scale + others.abs()) - 1e-9;
-    let hold = surface.min(closest).min(clear);
-    if hold > 0.0 { hold as f32 } else { 0.0 }
+    // No other collider: nothing to clear.
+    let clear = if others.is_finite() {
+        others - f64::from(band) - 1e-5 * (scale + others.abs()) - 1e-9
+    } else {
+        f64::INFINITY
+    };
+    let radius = closest.min(clear);
+    if radius.is_nan() || radius <= 0.0 {
+        return None;
+    }
+    // The resolution's own thresholds, `h ∓ tol` in f32.
+    let allow = 2e-6 * scale + 1e-5 * radius;
+    let lo = f64::from(h - tol) - f64::from(s) + allow;
+    let hi = f64::from(h + tol) - f64::from(s) - allow;
+    (lo <= 0.0 && hi >= 0.0).then_some((radius as f32, [lo as f32, hi as f32]))
 }
 
 /// The substeps a largest reaching motion `motion` asks for, before the clamp to

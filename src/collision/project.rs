@@ -15,12 +15,12 @@
 //! skipped finds exactly nothing to do: the positions and contacts are the same either way.
 //! The one exception is a vertex held on a face ([`Reach::hold`]): touching, the caller-order
 //! pass resolves it, but the test here may skip it, and the pass then reports it as touching
-//! with the contact it had, which is what resolving it would find (see `hold_radius`).
+//! with the contact it had, which is what resolving it would find (see `hold_of`).
 
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::{CHUNK, ChunkPass, Counters, Ctx, NONE, Reach, SkinCollision};
+use super::{CHUNK, ChunkPass, Counters, Ctx, NONE, Reach, SkinCollision, VertexState};
 use crate::solver::team::{Chunked, Par};
 
 /// The skip tests and last positions in the solver's order (see the module docs).
@@ -39,9 +39,52 @@ pub(super) struct View {
     prev: Vec<Vec3>,
     /// Whether `prev` holds the last positions (then [`SkinCollision::last`] is stale).
     holds_last: bool,
-    /// The vertices whose test is a hold ([`Reach::hold`]), by increasing internal index:
-    /// touching, they are reported as such when the test skips them.
-    holders: Vec<u32>,
+    /// The vertices held on a face ([`Reach::hold`]), by increasing internal index: their
+    /// skip test is [`Holder::keeps`] instead (their `limit2` fails every pass), and they are
+    /// reported as touching when it passes.
+    holders: Vec<Holder>,
+}
+
+/// A vertex held on a face: where it was resolved, its contact normal, the range of its
+/// offset along the normal and the radius within which resolving it changes nothing the
+/// solver sees (see `hold_of`).
+#[derive(Debug, Clone, Copy)]
+struct Holder {
+    /// Internal index.
+    i: u32,
+    at: Vec3,
+    normal: Vec3,
+    slab: [f32; 2],
+    radius2: f32,
+}
+
+impl Holder {
+    /// The hold of a vertex (internal index `i`) whose reach is `r` and state `state`, the
+    /// colliders' summed travel `travel`: none if a collider moved since it was resolved.
+    fn of(i: u32, r: &Reach, state: &VertexState, travel: f64) -> Option<Self> {
+        (r.hold > 0.0
+            && travel == r.travel_at
+            && r.at.is_finite()
+            && state.touches[0].collider != NONE
+            && state.touches[1].collider == NONE)
+            .then(|| Self {
+                i,
+                at: r.at,
+                normal: state.touches[0].normal,
+                slab: state.slab,
+                // The relative margin covers the f32 rounding of the squared distance.
+                radius2: (f64::from(r.hold) * (1.0 - 4e-6)).powi(2) as f32,
+            })
+    }
+
+    /// Whether the vertex, now at `p`, is still held: resolving it would find what the last
+    /// resolution did.
+    #[inline]
+    fn keeps(&self, p: Vec3) -> bool {
+        let d = p - self.at;
+        let along = self.normal.dot(d);
+        d.length_squared() <= self.radius2 && along >= self.slab[0] && along <= self.slab[1]
+    }
 }
 
 impl View {
@@ -52,19 +95,9 @@ impl View {
     }
 }
 
-/// Whether the test of a vertex whose reach is `r` is its hold: it touches one mesh collider
-/// inside a face, and no collider moved since (the colliders' summed travel `travel`).
-fn holds(r: &Reach, travel: f64) -> bool {
-    r.hold > 0.0 && travel == r.travel_at && r.at.is_finite()
-}
-
 /// The skip test of a vertex whose reach is `r`, the colliders' summed travel `travel`:
-/// `(at, limit²)` such that `|p − at|² ≤ limit²` in f32 implies `r.skips(p, travel)` or, for a
-/// vertex held on a face ([`holds`]), that resolving it would change nothing the solver sees.
+/// `(at, limit²)` such that `|p − at|² ≤ limit²` in f32 implies `r.skips(p, travel)`.
 fn test_of(r: &Reach, travel: f64) -> (Vec3, f32) {
-    if holds(r, travel) {
-        return (r.at, (f64::from(r.hold) * (1.0 - 4e-6)).powi(2) as f32);
-    }
     let limit = r.reserve as f64 / (1.0 + 1e-5) - (travel - r.travel_at);
     // The relative margin (4e-6) covers the f32 rounding of the squared distance, of its
     // square root in `skips` and of `limit²` itself (a few 1e-7 together).
@@ -89,8 +122,8 @@ struct Resolved {
     moved: bool,
     unresolved: bool,
     touching: bool,
-    /// Its test is a hold ([`holds`]).
-    holds: bool,
+    /// Its hold, if any.
+    holder: Option<Holder>,
     test: (Vec3, f32),
 }
 
@@ -202,23 +235,25 @@ impl SkinCollision {
                     .map(|(i, last)| (i, self.rank_of[i as usize], last)),
             );
         }
-        // The held vertices the test skipped (`listed` and `holders` both by increasing
-        // internal index): still touching, as the last pass left them.
-        let skipped_holders: Vec<u32> = {
-            let mut k = 0;
-            self.view
-                .holders
-                .iter()
-                .copied()
-                .filter(|&i| {
-                    while k < listed.len() && listed[k].0 < i {
-                        k += 1;
+        // The held vertices (all listed: their `limit2` fails) that their hold keeps: not
+        // resolved, still touching as the last pass left them. `listed` and `holders` are
+        // both by increasing internal index.
+        let mut skipped_holders: Vec<Holder> = Vec::new();
+        if !self.view.holders.is_empty() {
+            let mut holders = self.view.holders.iter().peekable();
+            listed.retain(|&(i, _, _)| {
+                while holders.next_if(|h| h.i < i).is_some() {}
+                match holders.peek() {
+                    Some(h) if h.i == i && h.keeps(x[i as usize]) => {
+                        skipped_holders.push(**h);
+                        false
                     }
-                    k == listed.len() || listed[k].0 != i
-                })
-                .collect()
-        };
+                    _ => true,
+                }
+            });
+        }
         counters.contacts += skipped_holders.len() as u64;
+        counters.skipped_vertices += skipped_holders.len() as u64;
         let chunks = n.div_ceil(CHUNK);
         let mut bounds = vec![0usize; chunks + 1];
         for &(_, o, _) in &listed {
@@ -293,7 +328,7 @@ impl SkinCollision {
                             moved,
                             unresolved,
                             touching: states[k].touches[0].collider != NONE,
-                            holds: holds(&reach[k], travel_sum),
+                            holder: Holder::of(i, &reach[k], &states[k], travel_sum),
                             test: test_of(&reach[k], travel_sum),
                         }
                     })
@@ -314,7 +349,7 @@ impl SkinCollision {
         // The touching vertices go back to the solver's order through their places `j`, so do
         // the new holders.
         let mut touches = vec![None; listed.len()];
-        let mut held = vec![false; listed.len()];
+        let mut held = vec![None; listed.len()];
         let view = &mut self.view;
         for (done, counters) in resolved {
             pass.counters.add(&counters);
@@ -332,23 +367,19 @@ impl SkinCollision {
                 if r.touching {
                     touches[r.j as usize] = Some((r.i, r.o));
                 }
-                held[r.j as usize] = r.holds;
+                held[r.j as usize] = r.holder;
             }
         }
         // Rare: a sort only when some vertex stayed unresolved.
         pass.unresolved.sort_unstable();
         // The resolved and the skipped holders, and the touching ones, by internal index.
-        let resolved_holders = listed
-            .iter()
-            .zip(&held)
-            .filter_map(|(&(i, _, _), &h)| h.then_some(i));
-        view.holders = merged(resolved_holders, skipped_holders.iter().copied(), |&i| i);
         let rank_of = &self.rank_of;
         let touching = merged(
             touches.into_iter().flatten(),
-            skipped_holders.iter().map(|&i| (i, rank_of[i as usize])),
+            skipped_holders.iter().map(|h| (h.i, rank_of[h.i as usize])),
             |&(i, _)| i,
         );
+        view.holders = merged(held.into_iter().flatten(), skipped_holders, |h| h.i);
         (pass, touching)
     }
 
@@ -382,15 +413,18 @@ impl SkinCollision {
                 });
             view.holds_last = true;
         }
+        let states = &self.states;
         view.holders = order
             .par_chunks(CHUNK)
             .enumerate()
             .map(|(c, order)| {
                 (c * CHUNK..)
                     .zip(order)
-                    .filter(|&(_, &o)| holds(&reach[o as usize], travel_sum))
-                    .map(|(i, _)| i as u32)
-                    .collect::<Vec<u32>>()
+                    .filter_map(|(i, &o)| {
+                        let o = o as usize;
+                        Holder::of(i as u32, &reach[o], &states[o], travel_sum)
+                    })
+                    .collect::<Vec<Holder>>()
             })
             .flatten_iter()
             .collect();
