@@ -374,12 +374,14 @@ impl SkinCollision {
         pass.unresolved.sort_unstable();
         // The resolved and the skipped holders, and the touching ones, by internal index.
         let rank_of = &self.rank_of;
-        let touching = merged(
-            touches.into_iter().flatten(),
-            skipped_holders.iter().map(|h| (h.i, rank_of[h.i as usize])),
-            |&(i, _)| i,
-        );
-        view.holders = merged(held.into_iter().flatten(), skipped_holders, |h| h.i);
+        let touched: Vec<(u32, u32)> = touches.into_iter().flatten().collect();
+        let kept: Vec<(u32, u32)> = skipped_holders
+            .iter()
+            .map(|h| (h.i, rank_of[h.i as usize]))
+            .collect();
+        let touching = merged(&touched, &kept, |t| t.0);
+        let resolved_holders: Vec<Holder> = held.into_iter().flatten().collect();
+        view.holders = merged(&resolved_holders, &skipped_holders, |h| h.i);
         (pass, touching)
     }
 
@@ -434,22 +436,24 @@ impl SkinCollision {
 }
 
 /// Two lists each sorted by `key` (no key in both), merged in that order.
-fn merged<T>(
-    a: impl IntoIterator<Item = T>,
-    b: impl IntoIterator<Item = T>,
-    key: impl Fn(&T) -> u32,
-) -> Vec<T> {
-    let (mut a, mut b) = (a.into_iter().peekable(), b.into_iter().peekable());
-    let mut out = Vec::with_capacity(a.size_hint().0 + b.size_hint().0);
-    loop {
-        let take_a = match (a.peek(), b.peek()) {
-            (Some(x), Some(y)) => key(x) < key(y),
-            (Some(_), None) => true,
-            (None, Some(_)) => false,
-            (None, None) => return out,
-        };
-        out.extend(if take_a { a.next() } else { b.next() });
+fn merged<T: Copy>(a: &[T], b: &[T], key: impl Fn(&T) -> u32) -> Vec<T> {
+    if b.is_empty() {
+        return a.to_vec();
     }
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        if key(&a[i]) < key(&b[j]) {
+            out.push(a[i]);
+            i += 1;
+        } else {
+            out.push(b[j]);
+            j += 1;
+        }
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
+    out
 }
 
 /// Vertices per work item of the skip test (a whole number of blocks).
