@@ -1471,8 +1471,8 @@ impl Ctx<'_> {
         };
         // A vertex that touched something is resolved again by the next pass (its contact and
         // touches must be recomputed even if it leaves), unless it is held on a face: then the
-        // solver-order passes skip it within its hold (see `project`). The rounding allowance covers the f32
-        // distances of the skip test and the bound's own rounding to f32.
+        // solver-order passes skip it within its hold (see `project`). The rounding allowance
+        // covers the f32 distances of the skip test and the bound's own rounding to f32.
         let reserve = safe - band as f64 - 1e-5 * (p.abs().max_element() as f64 + safe) - 1e-9;
         let hold = match in_band {
             Some((c, s, local, margin))
