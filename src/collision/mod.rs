@@ -1353,10 +1353,9 @@ impl Ctx<'_> {
         }
         let mut touching = Contact::NONE;
         let mut unresolved = false;
-        // The last round's contact in the band: (collider, signed distance, largest rest-frame
-        // coordinate, and inside a mesh face, certified, the margin of its triangle over every
-        // other).
-        let mut in_band: Option<(usize, f32, f32, Option<f32>)> = None;
+        // The last round's touch inside a mesh face, certified: (collider, signed distance,
+        // largest rest-frame coordinate, margin of its triangle over every other).
+        let mut face: Option<(usize, f32, f32, f32)> = None;
         // Rounds 0..max_rounds push; one more round only checks.
         for round in 0..=cfg.max_rounds {
             let check_only = round == cfg.max_rounds;
@@ -1364,7 +1363,7 @@ impl Ctx<'_> {
             // The contacts of the last round, which saw the final position.
             state.touches = [Touch::NONE; TOUCHES];
             let mut touches = 0;
-            in_band = None;
+            face = None;
             for (c, col) in self.colliders.iter().enumerate() {
                 let slot = &mut slots[c];
                 let travel = self.travel[c];
@@ -1401,14 +1400,6 @@ impl Ctx<'_> {
                     coords: proj.coords,
                 };
                 touching = contact;
-                // Inside a face (no barycentric coordinate zero) the normal is the face's.
-                let face = certified && proj.coords.min_element() > 0.0;
-                in_band = Some((
-                    c,
-                    s,
-                    local.abs().max_element(),
-                    face.then_some(patches[c].margin),
-                ));
                 // Only a contact at the surface goes to the solver: one in the band but off the
                 // surface would be held there and snapped onto it by the next projection (the
                 // lift below), a pull that the next iteration releases and the one after holds
@@ -1419,6 +1410,9 @@ impl Ctx<'_> {
                         normal: pose.transform_vector(proj.normal),
                     };
                     touches += 1;
+                    // Inside a face (no barycentric coordinate zero) the normal is the face's.
+                    face = (certified && proj.coords.min_element() > 0.0)
+                        .then(|| (c, s, local.abs().max_element(), patches[c].margin));
                 }
                 if state.anchor.collider == NONE {
                     state.anchor = contact;
@@ -1459,22 +1453,34 @@ impl Ctx<'_> {
         }
         state.contact = touching;
         counters.contacts += (touching.collider != NONE) as u64;
-        let safe = if unresolved {
-            0.0
+        // The lower bound of the distance to every collider, and to every other than the one
+        // touched inside a face (for its hold), from the slots in one pass.
+        let face_c = face.map(|f| f.0);
+        let (safe, others) = if unresolved {
+            (0.0, f64::INFINITY)
         } else {
-            slots
-                .iter()
-                .zip(self.travel)
-                .map(|(s, &t)| s.lower_bound(*p, t))
-                .fold(f64::INFINITY, f64::min)
-                .max(0.0)
+            let (all, others) = slots.iter().zip(self.travel).enumerate().fold(
+                (f64::INFINITY, f64::INFINITY),
+                |(all, others), (k, (s, &t))| {
+                    let b = s.lower_bound(*p, t);
+                    (
+                        all.min(b),
+                        if face_c == Some(k) {
+                            others
+                        } else {
+                            others.min(b)
+                        },
+                    )
+                },
+            );
+            (all.max(0.0), others)
         };
         // A vertex that touched something is resolved again by the next pass (its contact and
         // touches must be recomputed even if it leaves), unless it is held on a face: then the
         // solver-order passes skip it within its hold (see `project`). The rounding allowance
         // covers the f32 distances of the skip test and the bound's own rounding to f32.
         let reserve = safe - band as f64 - 1e-5 * (p.abs().max_element() as f64 + safe) - 1e-9;
-        let hold = match in_band {
+        let hold = match face {
             Some((c, s, local, margin))
                 if self.face_holds
                     && cfg.friction == 0.0
@@ -1483,15 +1489,8 @@ impl Ctx<'_> {
                     && state.touches[0].collider == c as u32
                     && state.touches[1].collider == NONE =>
             {
-                let others = slots
-                    .iter()
-                    .zip(self.travel)
-                    .enumerate()
-                    .filter(|&(k, _)| k != c)
-                    .map(|(_, (s, &t))| s.lower_bound(*p, t))
-                    .fold(f64::INFINITY, f64::min);
                 let scale = p.abs().max_element().max(local) + s.abs();
-                margin.and_then(|m| hold_of(scale, (h, tol, band), s, m, others))
+                hold_of(scale, (h, tol, band), s, margin, others)
             }
             _ => None,
         };
