@@ -3,10 +3,10 @@
 //! Every kernel reads the neighbours of a vertex and writes only that vertex, over fixed-size
 //! chunks (eight vertices at a time, see [`super::simd`]). Partial sums are per chunk and added
 //! in chunk order, so the results are bit-identical for any number of threads. The dot products
-//! the conjugate-gradient update needs are taken inside the passes that produce their operands,
-//! and the trial point `x + a d` is computed inside the force gather (no trial vector), so one
-//! iteration streams the vertices three times: the force gather at the trial point, the step
-//! with the direction update, and the curvature gather.
+//! the conjugate-gradient update needs are taken inside the passes that produce their operands.
+//! One iteration streams the vertices four times: the curvature gather, the step to the trial
+//! point (in place: the solver keeps no trial vector and no copy of the last point), the force
+//! gather there, and the direction update.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -85,25 +85,23 @@ impl Frame<'_> {
         self.gather_inputs(x, None, w, r, partial)
     }
 
-    /// [`gather`](Self::gather) at the trial point `x + a d`, computed on the fly with the
-    /// same f32 operations as [`advance`] (so the accepted step lands exactly there).
-    pub fn gather_step(
+    /// [`gather`](Self::gather) after a step along `d`, with `Σ r·d` ([`Sums::rd`]).
+    pub fn gather_along(
         &self,
         x: &[Vec3],
         d: &[Vec3],
-        a: f32,
         w: Option<&[f32]>,
         r: &mut [Vec3],
         partial: &mut [Sums],
     ) -> Sums {
-        self.gather_inputs(x, Some((d, a)), w, r, partial)
+        self.gather_inputs(x, Some(d), w, r, partial)
     }
 
     #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
     fn gather_inputs(
         &self,
         x: &[Vec3],
-        step: Option<(&[Vec3], f32)>,
+        dir: Option<&[Vec3]>,
         w: Option<&[f32]>,
         r: &mut [Vec3],
         partial: &mut [Sums],
@@ -111,7 +109,7 @@ impl Frame<'_> {
         let inputs = ForceInputs {
             sell: self.sell,
             x,
-            step,
+            dir,
             anchors: self.anchors,
             external: self.external,
             w,
@@ -183,47 +181,40 @@ pub(crate) fn update_direction(
         let range = c * CHUNK..((c + 1) * CHUNK).min(r.len());
         // SAFETY: each chunk index once per loop.
         let (d, p) = unsafe { (ds.chunk(c), ps.chunk(c)) };
-        p[0] = simd::direction(isa, d, &r[range.clone()], &w[range], beta, None);
+        p[0] = simd::direction(isa, d, &r[range.clone()], &w[range], beta);
     });
     total(partial)
 }
 
-/// The accepted step `x += a d` fused with the direction update `d = w·r + β d` that follows
-/// it (one pass instead of two); returns `Σ r·d` for the new direction.
+/// Floats an [`advance`] noted per chunk so that [`retreat`] can undo it bit for bit.
+pub(crate) type Spills = Vec<Vec<(u32, f32)>>;
+
+/// The step `x += a d`, in place; `spills` (one list per chunk) receives what [`retreat`]
+/// needs to undo it exactly.
 #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
-#[expect(clippy::too_many_arguments, reason = "one fused pass over five fields")]
-pub(crate) fn step_and_update_direction(
-    par: Par<'_>,
-    x: &mut [Vec3],
-    a: f32,
-    d: &mut [Vec3],
-    r: &[Vec3],
-    w: &[f32],
-    beta: f32,
-    partial: &mut [f64],
-) -> f64 {
+pub(crate) fn advance(par: Par<'_>, x: &mut [Vec3], d: &[Vec3], a: f32, spills: &mut Spills) {
     let isa = Isa::detect(0);
-    let (xs, ds) = (Chunked::new(x, CHUNK), Chunked::new(d, CHUNK));
-    let ps = Chunked::new(partial, 1);
-    par.for_each(ps.chunks(), |c| {
-        let range = c * CHUNK..((c + 1) * CHUNK).min(r.len());
+    spills.resize_with(chunks(d.len()), Vec::new);
+    let (xs, ss) = (Chunked::new(x, CHUNK), Chunked::new(spills, 1));
+    par.for_each(chunks(d.len()), |c| {
+        let range = c * CHUNK..((c + 1) * CHUNK).min(d.len());
         // SAFETY: each chunk index once per loop.
-        let (x, d, p) = unsafe { (xs.chunk(c), ds.chunk(c), ps.chunk(c)) };
-        p[0] = simd::direction(isa, d, &r[range.clone()], &w[range], beta, Some((x, a)));
+        let (x, s) = unsafe { (xs.chunk(c), ss.chunk(c)) };
+        simd::advance(isa, x, &d[range], a, &mut s[0]);
     });
-    total(partial)
 }
 
-/// The accepted step `x += a d` (the same f32 operations as [`Frame::gather_step`]).
+/// Undoes the last [`advance`] (the same `d`, `a` and `spills`): `x` is back to its bits
+/// before it.
 #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
-pub(crate) fn advance(par: Par<'_>, x: &mut [Vec3], d: &[Vec3], a: f32) {
+pub(crate) fn retreat(par: Par<'_>, x: &mut [Vec3], d: &[Vec3], a: f32, spills: &Spills) {
     let isa = Isa::detect(0);
     let xs = Chunked::new(x, CHUNK);
     par.for_each(chunks(d.len()), |c| {
         let range = c * CHUNK..((c + 1) * CHUNK).min(d.len());
         // SAFETY: each chunk index once per loop.
         let x = unsafe { xs.chunk(c) };
-        simd::advance(isa, x, &d[range], a);
+        simd::retreat(isa, x, &d[range], a, &spills[c]);
     });
 }
 

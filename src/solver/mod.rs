@@ -35,7 +35,7 @@ use thiserror::Error;
 
 use crate::mesh::TriMesh;
 use contact::ContactSet;
-use kernels::{Frame, Sums, advance, dot, step_and_update_direction, update_direction};
+use kernels::{Frame, Spills, Sums, advance, dot, retreat, update_direction};
 use sell::Sell;
 use simd::SlicedAnchors;
 use team::{Par, Team};
@@ -620,6 +620,7 @@ impl SpringSystem {
         let mut sums_scratch = vec![Sums::default(); chunks];
         let mut scalar_scratch = vec![0.0f64; chunks];
         let mut r = vec![Vec3::ZERO; n];
+        let mut spills = Spills::new();
         // The projection's active contacts and the ones held (their normal force is taken by
         // the contact, so it leaves the residual and the directions).
         let mut contacts = ContactSet::default();
@@ -710,24 +711,32 @@ impl SpringSystem {
             } else {
                 1.0
             };
-            // The force gather at the trial point `x + a d` overwrites `r` (reading the old
-            // force for the product `Σ w r·r_old` first); a rejected trial restores it.
+            // `x` moves to the trial point `x + a d` in place, so that the force gather there
+            // reads one row per neighbour (not `x` and `d` to form the point); the solver keeps
+            // no copy of the last point: the step notes the few floats `x + a d − a d` would
+            // not give back, and a rejected trial is undone bit for bit. The gather overwrites
+            // `r`, reading the old force for `Σ w r·r_old` first; a rejected trial restores it.
             let mut accepted = None;
+            let mut at = 0.0f32;
             for attempt in 0..30 {
                 if attempt > 0 {
+                    retreat(par, &mut xi, &d, at, &spills);
                     frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
                     contacts.reapply(&mut r);
                 }
                 let a = alpha as f32;
-                let sums =
-                    frame.gather_step(&xi, &d, a, Some(&inv_diag), &mut r, &mut sums_scratch);
+                advance(par, &mut xi, &d, a, &mut spills);
+                at = a;
+                let sums = frame.gather_along(&xi, &d, Some(&inv_diag), &mut r, &mut sums_scratch);
                 if sums.energy < energy {
-                    accepted = Some((sums, a));
+                    accepted = Some(sums);
                     break;
                 }
                 alpha *= 0.5;
             }
-            let Some((mut sums, step)) = accepted else {
+            let Some(mut sums) = accepted else {
+                // Back to the last point and its force.
+                retreat(par, &mut xi, &d, at, &spills);
                 let mut sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
                 let c = contacts.constrain(&mut r, &inv_diag, &mut sums);
                 r_norm = (sums.rr + c.chopped_rr).sqrt();
@@ -745,12 +754,6 @@ impl SpringSystem {
             let mut rd = sums.rd;
             let mut proportioning = false;
             let mut hold_restart = false;
-            // The step `x += a d` lands exactly on the trial point; without a projection it is
-            // fused into the direction update below.
-            let step_now = projection.is_some();
-            if step_now {
-                advance(par, &mut xi, &d, step);
-            }
             if let Some(p) = projection.as_deref_mut() {
                 if p.project(&mut xi, &self.order) {
                     sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
@@ -814,11 +817,8 @@ impl SpringSystem {
                 // A proportioning step: only the released vertices move (see
                 // `ContactSet::proportioning_direction`); the next iteration restarts.
                 contacts.proportioning_direction(&mut d, &r, &inv_diag)
-            } else if step_now {
-                update_direction(par, &mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch)
             } else {
-                let (b, scratch) = (beta as f32, &mut scalar_scratch);
-                step_and_update_direction(par, &mut xi, step, &mut d, &r, &inv_diag, b, scratch)
+                update_direction(par, &mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch)
             } + contacts.constrain_direction(&mut d, &r);
         }
         if stop == StopReason::Budget && converged(r_norm) {

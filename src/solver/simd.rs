@@ -74,25 +74,6 @@ pub(crate) trait Lanes: Copy {
     /// # Safety
     /// `p` points to `3 n` readable floats and every index is below `n`.
     unsafe fn vec3s(self, p: *const f32, n: usize, rows: &Rows, j: Self::I) -> [Self::F; 3];
-    /// `x + a d` at the same rows: [`vec3s`](Self::vec3s) of `x` (at `p`) and of `d` (at `dp`),
-    /// then per component `x + d·a` (the same f32 operations, in any lane arrangement).
-    ///
-    /// # Safety
-    /// As [`vec3s`](Self::vec3s), for both `p` and `dp`.
-    #[inline(always)]
-    unsafe fn vec3s_step(
-        self,
-        p: *const f32,
-        dp: *const f32,
-        a: Self::F,
-        n: usize,
-        rows: &Rows,
-        j: Self::I,
-    ) -> [Self::F; 3] {
-        // SAFETY: the caller's contract.
-        let (x, d) = unsafe { (self.vec3s(p, n, rows, j), self.vec3s(dp, n, rows, j)) };
-        stepped::<Self, true>(self, x, d, a)
-    }
     /// [`vec3s`](Self::vec3s) of `x` (at `p`) and of `d` (at `dp`) at the same rows.
     ///
     /// # Safety
@@ -139,6 +120,8 @@ pub(crate) trait Lanes: Copy {
     }
     /// Lanes whose sign bit is set (`-0.0` included).
     fn negative(self, a: Self::F) -> Self::M;
+    /// Whether `a` and `b` hold the same bits in every lane.
+    fn same_bits(self, a: Self::F, b: Self::F) -> bool;
     /// Eight f64 from an array.
     fn dfrom(self, a: [f64; 8]) -> Self::D;
     /// `3 i` per lane.
@@ -269,6 +252,10 @@ impl Lanes for Scalar {
     #[inline(always)]
     fn negative(self, a: Self::F) -> Self::M {
         a.map(f32::is_sign_negative)
+    }
+    #[inline(always)]
+    fn same_bits(self, a: Self::F, b: Self::F) -> bool {
+        a.iter().zip(&b).all(|(a, b)| a.to_bits() == b.to_bits())
     }
     #[inline(always)]
     fn dfrom(self, a: [f64; 8]) -> Self::D {
@@ -526,55 +513,6 @@ mod avx2 {
             }
         }
         #[inline(always)]
-        unsafe fn vec3s_step(
-            self,
-            p: *const f32,
-            dp: *const f32,
-            a: Self::F,
-            n: usize,
-            rows: &super::Rows,
-            j: Self::I,
-        ) -> [Self::F; 3] {
-            // SAFETY: as in `vec3s`; the 16-byte rows of x and d are combined before the
-            // transpose (one transpose instead of two; the fourth float of each row, the next
-            // vector's x, is combined too and then dropped).
-            unsafe {
-                let last = _mm256_set1_epi32(n as i32 - 1);
-                if rows.may_name_last
-                    && _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(j, last))) != 0
-                {
-                    let (x, d) = (
-                        super::gather3(self, p, self.times3(j)),
-                        super::gather3(self, dp, self.times3(j)),
-                    );
-                    return super::stepped::<Self, true>(self, x, d, a);
-                }
-                let (p, dp) = (p.add(3 * rows.shift), dp.add(3 * rows.shift));
-                let pair = |lo: usize, hi: usize| {
-                    let (lo, hi) = (rows.row(lo), rows.row(hi));
-                    let x = _mm256_insertf128_ps::<1>(
-                        _mm256_castps128_ps256(_mm_loadu_ps(p.offset(lo))),
-                        _mm_loadu_ps(p.offset(hi)),
-                    );
-                    let d = _mm256_insertf128_ps::<1>(
-                        _mm256_castps128_ps256(_mm_loadu_ps(dp.offset(lo))),
-                        _mm_loadu_ps(dp.offset(hi)),
-                    );
-                    _mm256_fmadd_ps(d, a, x)
-                };
-                let (v0, v1, v2, v3) = (pair(0, 4), pair(1, 5), pair(2, 6), pair(3, 7));
-                let t0 = _mm256_unpacklo_ps(v0, v1);
-                let t1 = _mm256_unpackhi_ps(v0, v1);
-                let t2 = _mm256_unpacklo_ps(v2, v3);
-                let t3 = _mm256_unpackhi_ps(v2, v3);
-                [
-                    _mm256_shuffle_ps::<0x44>(t0, t2),
-                    _mm256_shuffle_ps::<0xEE>(t0, t2),
-                    _mm256_shuffle_ps::<0x44>(t1, t3),
-                ]
-            }
-        }
-        #[inline(always)]
         unsafe fn vec3s_pair(
             self,
             p: *const f32,
@@ -656,6 +594,14 @@ mod avx2 {
         fn negative(self, a: Self::F) -> Self::M {
             // Masks only feed `blendv`, which reads the sign bit alone.
             a
+        }
+        #[inline(always)]
+        fn same_bits(self, a: Self::F, b: Self::F) -> bool {
+            // SAFETY: AVX2 is enabled where this inlines (see the module documentation).
+            unsafe {
+                let x = _mm256_xor_si256(_mm256_castps_si256(a), _mm256_castps_si256(b));
+                _mm256_testz_si256(x, x) == 1
+            }
         }
         #[inline(always)]
         fn dfrom(self, a: [f64; 8]) -> Self::D {
@@ -939,9 +885,8 @@ impl SlicedAnchors {
 pub(crate) struct ForceInputs<'a> {
     pub sell: &'a Sell,
     pub x: &'a [Vec3],
-    /// `Some((d, a))`: the forces are taken at `x + a d` (computed on the fly, the same f32
-    /// operations as [`advance`]).
-    pub step: Option<(&'a [Vec3], f32)>,
+    /// `Some(d)`: the direction of the step that led to `x`, for `Σ r·d` ([`Sums::rd`]).
+    pub dir: Option<&'a [Vec3]>,
     pub anchors: Option<&'a SlicedAnchors>,
     pub external: Option<&'a [Vec3]>,
     /// The preconditioner weights (inverse diagonal) for the dot products; a negative weight
@@ -1099,16 +1044,6 @@ macro_rules! with_ends {
     };
 }
 
-/// `x + a d` per lane and component (`x` alone without a step).
-#[inline(always)]
-fn stepped<S: Lanes, const STEP: bool>(l: S, x: [S::F; 3], d: [S::F; 3], a: S::F) -> [S::F; 3] {
-    if STEP {
-        std::array::from_fn(|c| l.fma(d[c], a, x[c]))
-    } else {
-        x
-    }
-}
-
 /// The vertices of slice `s` (clamped to the last vertex past the end).
 #[inline(always)]
 fn own_lanes<S: Lanes>(l: S, sell: &Sell, s: usize) -> S::I {
@@ -1154,7 +1089,7 @@ unsafe fn own_vec3<S: Lanes>(l: S, sell: &Sell, s: usize, own: S::I, v: &[Vec3])
 /// # Safety
 /// All arrays of `f` have `f.sell.n` entries and every spring index is below it.
 #[inline(always)]
-unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
+unsafe fn force_slice<S: Lanes, E: Ends>(
     l: S,
     f: &ForceInputs<'_>,
     s: usize,
@@ -1163,25 +1098,8 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
     let sell = f.sell;
     let own = own_lanes(l, sell, s);
     let xp = f.x.as_ptr().cast::<f32>();
-    let (d, a) = f.step.unwrap_or((f.x, 0.0));
-    let (dp, a) = (d.as_ptr().cast::<f32>(), l.splat(a));
-    // SAFETY (all gathers): indices below n, arrays of n entries (the caller's contract).
-    let [yx, yy, yz] = unsafe {
-        if STEP && (s + 1) * LANES <= sell.n {
-            // A full slice: the step on the 24 floats as stored, then one transpose.
-            let (xs, ds) = (xp.add(3 * LANES * s), dp.add(3 * LANES * s));
-            let y = [0, 8, 16].map(|f| l.fma(l.load_at(ds.add(f)), a, l.load_at(xs.add(f))));
-            l.deinterleave(y)
-        } else {
-            let x = own_vec3(l, sell, s, own, f.x);
-            let d = if STEP {
-                own_vec3(l, sell, s, own, d)
-            } else {
-                x
-            };
-            stepped::<S, STEP>(l, x, d, a)
-        }
-    };
+    // SAFETY: `x` has n entries (the caller's contract).
+    let [yx, yy, yz] = unsafe { own_vec3(l, sell, s, own, f.x) };
     let (yx64, yy64, yz64) = (l.widen(yx), l.widen(yy), l.widen(yz));
     let zero = l.splat(0.0);
     let (one, half) = (l.splat(1.0), l.splat(0.5));
@@ -1195,14 +1113,8 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
             let e = $e;
             let (j, rows) = ends.at(l, e);
             let (k, rest) = $k;
-            // SAFETY: spring indices are below n, x and d have n entries.
-            let z = unsafe {
-                if STEP {
-                    l.vec3s_step(xp, dp, a, sell.n, &rows, j)
-                } else {
-                    l.vec3s(xp, sell.n, &rows, j)
-                }
-            };
+            // SAFETY: spring indices are below n, x has n entries.
+            let z = unsafe { l.vec3s(xp, sell.n, &rows, j) };
             let (ex, ey, ez) = (l.sub(z[0], yx), l.sub(z[1], yy), l.sub(z[2], yz));
             let l2 = l.fma(ez, ez, l.fma(ey, ey, l.mul(ex, ex)));
             // `len > MIN_POSITIVE` exactly when `l2 > 0`: a positive f32 `l2` is at least the
@@ -1317,18 +1229,13 @@ unsafe fn force_slice<S: Lanes, E: Ends, const STEP: bool>(
 /// One chunk of the force gather: vertices `first..first + r.len()` (a multiple of [`LANES`]
 /// apart from the last chunk), forces into `r`, partial sums returned.
 #[inline(always)]
-fn force_chunk<S: Lanes, const STEP: bool>(
-    l: S,
-    f: &ForceInputs<'_>,
-    first: usize,
-    r: &mut [Vec3],
-) -> Sums {
+fn force_chunk<S: Lanes>(l: S, f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
     let n = f.sell.n;
     let w = f.w;
     assert_entries(f.sell);
     assert!(
         f.x.len() == n
-            && f.step.is_none_or(|(d, _)| d.len() == n)
+            && f.dir.is_none_or(|d| d.len() == n)
             && f.anchors.is_none_or(|a| a.len() == n)
             && f.external.is_none_or(|e| e.len() == n)
             && w.is_none_or(|w| w.len() == n)
@@ -1346,11 +1253,11 @@ fn force_chunk<S: Lanes, const STEP: bool>(
         l.dsplat(0.0),
     );
     // The step's direction, for `Σ r·d`.
-    let step_dir = f.step.filter(|_| STEP).map(|(d, _)| d);
+    let step_dir = f.dir;
     for (s, out) in (first / LANES..).zip(r.chunks_mut(LANES)) {
         // SAFETY: lengths asserted above; spring indices are below n by construction.
         let ([fx, fy, fz], energy) =
-            with_ends!(f.sell, s, ends => unsafe { force_slice::<S, _, STEP>(l, f, s, ends) });
+            with_ends!(f.sell, s, ends => unsafe { force_slice::<S, _>(l, f, s, ends) });
         let base = s * LANES;
         if out.len() == LANES {
             energy_acc = l.dadd(energy_acc, energy);
@@ -1428,26 +1335,16 @@ fn force_chunk<S: Lanes, const STEP: bool>(
     }
 }
 
-/// [`force_chunk`] with the step known at compile time.
-#[inline(always)]
-fn force_chunk_any<S: Lanes>(l: S, f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
-    if f.step.is_some() {
-        force_chunk::<S, true>(l, f, first, r)
-    } else {
-        force_chunk::<S, false>(l, f, first, r)
-    }
-}
-
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn force_chunk_avx2(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
-    force_chunk_any(avx2::Avx2, f, first, r)
+    force_chunk(avx2::Avx2, f, first, r)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma,avx512f,avx512vl")]
 fn force_chunk_avx512(f: &ForceInputs<'_>, first: usize, r: &mut [Vec3]) -> Sums {
-    force_chunk_any(avx512::Avx512, f, first, r)
+    force_chunk(avx512::Avx512, f, first, r)
 }
 
 impl ForceInputs<'_> {
@@ -1460,28 +1357,18 @@ impl ForceInputs<'_> {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Isa::Avx512` is only returned after the CPU checks (AVX2, AVX-512F and VL).
             Isa::Avx512 => unsafe { force_chunk_avx512(self, first, r) },
-            _ => force_chunk_any(Scalar, self, first, r),
+            _ => force_chunk(Scalar, self, first, r),
         }
     }
 }
 
-/// The direction update `d = w·r + β d` of one chunk, after advancing `x += a d` (with the old
-/// `d`) for `step = Some((x, a))`; returns `Σ r·d` summed in vertex order (the same operations
-/// as the plain loop, eight vertices at a time).
+/// The direction update `d = w·r + β d` of one chunk; returns `Σ r·d` summed in vertex order
+/// (the same operations as the plain loop, eight vertices at a time).
 #[inline(always)]
-fn direction_chunk<S: Lanes>(
-    l: S,
-    d: &mut [Vec3],
-    r: &[Vec3],
-    w: &[f32],
-    beta: f32,
-    mut step: Option<(&mut [Vec3], f32)>,
-) -> f64 {
+fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
     assert!(r.len() == d.len() && w.len() == d.len());
-    assert!(step.as_ref().is_none_or(|(x, _)| x.len() == d.len()));
     let full = d.len() / LANES * LANES;
     let b = l.splat(beta);
-    let a = l.splat(step.as_ref().map_or(0.0, |s| s.1));
     let mut slope = 0.0f64;
     // Elementwise on the floats as stored (no transposes): eight vertices are three registers
     // of eight floats; only the products `r·d` are regrouped per component for the dot.
@@ -1497,16 +1384,6 @@ fn direction_chunk<S: Lanes>(
                 [0, 8, 16].map(|f| l.load_at(dp.add(f))),
             )
         };
-        if let Some((x, _)) = step.as_mut() {
-            let xp = x[o..].as_mut_ptr().cast::<f32>();
-            for (k, dv) in dv.iter().enumerate() {
-                // SAFETY: eight vectors from `o` are in bounds of `x` (same length as `d`).
-                unsafe {
-                    let moved = l.fma(*dv, a, l.load_at(xp.add(8 * k)));
-                    l.store_at(xp.add(8 * k), moved);
-                }
-            }
-        }
         let wv = l.spread3(l.load(&w[o..o + LANES]));
         let nv: [S::F; 3] = std::array::from_fn(|k| l.fma(dv[k], b, l.mul(rv[k], wv[k])));
         for (k, nv) in nv.iter().enumerate() {
@@ -1520,9 +1397,6 @@ fn direction_chunk<S: Lanes>(
         }
     }
     for i in full..d.len() {
-        if let Some((x, a)) = step.as_mut() {
-            x[i] = d[i].mul_add(Vec3::splat(*a), x[i]);
-        }
         d[i] = d[i].mul_add(Vec3::splat(beta), r[i] * w[i]);
         slope += r[i].dot(d[i]) as f64;
     }
@@ -1531,69 +1405,119 @@ fn direction_chunk<S: Lanes>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn direction_chunk_avx2(
-    d: &mut [Vec3],
-    r: &[Vec3],
-    w: &[f32],
-    beta: f32,
-    step: Option<(&mut [Vec3], f32)>,
-) -> f64 {
-    direction_chunk(avx2::Avx2, d, r, w, beta, step)
+fn direction_chunk_avx2(d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
+    direction_chunk(avx2::Avx2, d, r, w, beta)
 }
 
-/// `d = w·r + β d` over one chunk (after `x += a d` for `step = Some((x, a))`), returning
-/// `Σ r·d` in vertex order (see [`super::kernels::update_direction`]).
-pub(crate) fn direction(
-    isa: Isa,
-    d: &mut [Vec3],
-    r: &[Vec3],
-    w: &[f32],
-    beta: f32,
-    step: Option<(&mut [Vec3], f32)>,
-) -> f64 {
+/// `d = w·r + β d` over one chunk, returning `Σ r·d` in vertex order (see
+/// [`super::kernels::update_direction`]).
+pub(crate) fn direction(isa: Isa, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only returned after the AVX2 check.
-        Isa::Avx2 | Isa::Avx512 => unsafe { direction_chunk_avx2(d, r, w, beta, step) },
-        _ => direction_chunk(Scalar, d, r, w, beta, step),
+        Isa::Avx2 | Isa::Avx512 => unsafe { direction_chunk_avx2(d, r, w, beta) },
+        _ => direction_chunk(Scalar, d, r, w, beta),
     }
 }
 
-/// `x += a d` over one chunk (the same f32 operations as a gather's `step`).
+/// `x += a d` over one chunk, noting in `spill` (cleared first) each float whose old value
+/// `x − a d` would not give back bit for bit (its index in the chunk's floats, and the value):
+/// with them, [`retreat`] restores the chunk exactly. Rounding makes `x + a d − a d` differ from
+/// `x` only where the sum crossed into a wider binade or the rounding tied: rarely.
 #[inline(always)]
-fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32) {
+fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<(u32, f32)>) {
     assert!(x.len() == d.len());
+    spill.clear();
     // Elementwise on the floats as stored.
     let floats = 3 * x.len();
     let full = floats / LANES * LANES;
     let (xp, dp) = (x.as_mut_ptr().cast::<f32>(), d.as_ptr().cast::<f32>());
-    let av = l.splat(a);
+    let (av, back) = (l.splat(a), l.splat(-a));
     for f in (0..full).step_by(LANES) {
         // SAFETY: eight floats from `f < full <= floats` are in bounds of `x` and `d`.
         unsafe {
-            let moved = l.fma(l.load_at(dp.add(f)), av, l.load_at(xp.add(f)));
+            let (old, dv) = (l.load_at(xp.add(f)), l.load_at(dp.add(f)));
+            let moved = l.fma(dv, av, old);
             l.store_at(xp.add(f), moved);
+            let undone = l.fma(dv, back, moved);
+            if !l.same_bits(undone, old) {
+                let (old, undone) = (l.store(old), l.store(undone));
+                for k in 0..LANES {
+                    if old[k].to_bits() != undone[k].to_bits() {
+                        spill.push(((f + k) as u32, old[k]));
+                    }
+                }
+            }
         }
     }
     for f in full..floats {
         // SAFETY: `f < floats`, in bounds of both.
-        unsafe { *xp.add(f) = (*dp.add(f)).mul_add(a, *xp.add(f)) };
+        unsafe {
+            let old = *xp.add(f);
+            let moved = (*dp.add(f)).mul_add(a, old);
+            *xp.add(f) = moved;
+            if (*dp.add(f)).mul_add(-a, moved).to_bits() != old.to_bits() {
+                spill.push((f as u32, old));
+            }
+        }
+    }
+}
+
+/// Undoes [`advance_chunk`] with the same `d`, `a` and `spill`: `x − a d`, then the spilled
+/// floats put back.
+#[inline(always)]
+fn retreat_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &[(u32, f32)]) {
+    assert!(x.len() == d.len());
+    let floats = 3 * x.len();
+    let full = floats / LANES * LANES;
+    let (xp, dp) = (x.as_mut_ptr().cast::<f32>(), d.as_ptr().cast::<f32>());
+    let back = l.splat(-a);
+    for f in (0..full).step_by(LANES) {
+        // SAFETY: eight floats from `f < full <= floats` are in bounds of `x` and `d`.
+        unsafe {
+            let undone = l.fma(l.load_at(dp.add(f)), back, l.load_at(xp.add(f)));
+            l.store_at(xp.add(f), undone);
+        }
+    }
+    for f in full..floats {
+        // SAFETY: `f < floats`, in bounds of both.
+        unsafe { *xp.add(f) = (*dp.add(f)).mul_add(-a, *xp.add(f)) };
+    }
+    for &(f, old) in spill {
+        let f = f as usize;
+        x[f / 3][f % 3] = old;
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn advance_chunk_avx2(x: &mut [Vec3], d: &[Vec3], a: f32) {
-    advance_chunk(avx2::Avx2, x, d, a)
+fn advance_chunk_avx2(x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<(u32, f32)>) {
+    advance_chunk(avx2::Avx2, x, d, a, spill)
 }
 
-/// `x += a d` over one chunk.
-pub(crate) fn advance(isa: Isa, x: &mut [Vec3], d: &[Vec3], a: f32) {
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn retreat_chunk_avx2(x: &mut [Vec3], d: &[Vec3], a: f32, spill: &[(u32, f32)]) {
+    retreat_chunk(avx2::Avx2, x, d, a, spill)
+}
+
+/// `x += a d` over one chunk, with what [`retreat`] needs to undo it exactly in `spill`.
+pub(crate) fn advance(isa: Isa, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<(u32, f32)>) {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only returned after the AVX2 check.
-        Isa::Avx2 | Isa::Avx512 => unsafe { advance_chunk_avx2(x, d, a) },
-        _ => advance_chunk(Scalar, x, d, a),
+        Isa::Avx2 | Isa::Avx512 => unsafe { advance_chunk_avx2(x, d, a, spill) },
+        _ => advance_chunk(Scalar, x, d, a, spill),
+    }
+}
+
+/// Undoes [`advance`] (the same `d`, `a` and `spill`) bit for bit.
+pub(crate) fn retreat(isa: Isa, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &[(u32, f32)]) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: as in `advance`.
+        Isa::Avx2 | Isa::Avx512 => unsafe { retreat_chunk_avx2(x, d, a, spill) },
+        _ => retreat_chunk(Scalar, x, d, a, spill),
     }
 }
 
@@ -1912,22 +1836,15 @@ mod tests {
         );
         let sliced = SlicedAnchors::new(&anchors, &system.order);
         let w = weights(&pi);
-        // The gather at `x` and the gather at `x0 + a d` with `x0 + a d == x` (computed the
-        // plain way) must both reproduce the reference at `x`.
+        // The gather with and without a step's direction `d` must both reproduce the reference;
+        // with it, `Σ r·d` too.
         let d: Vec<Vec3> = (0..sell.n)
             .map(|i| Vec3::new((i as f32 * 0.7).sin(), (i as f32 * 0.3).cos(), 0.2) * 1e-3)
             .collect();
-        let a = 0.37f32;
-        let x0: Vec<Vec3> = xi.iter().map(|x| *x * 0.999).collect();
-        let stepped: Vec<Vec3> = x0
-            .iter()
-            .zip(&d)
-            .map(|(x, d)| d.mul_add(Vec3::splat(a), *x))
-            .collect();
-        for (x, step, at) in [(&xi, None, &xi), (&x0, Some((d.as_slice(), a)), &stepped)] {
-            let (want, want_energy) = reference(sell, at, &ai, &ei, &pi);
+        let (want, want_energy) = reference(sell, &xi, &ai, &ei, &pi);
+        for dir in [None, Some(d.as_slice())] {
             // `Σ r·d` with the step's direction (none without a step), summed plainly.
-            let want_rd: f64 = step.map_or(0.0, |(d, _)| {
+            let want_rd: f64 = dir.map_or(0.0, |d| {
                 want.iter()
                     .zip(d)
                     .map(|(f, d)| f64::from(fused::dot(*f, *d)))
@@ -1937,8 +1854,8 @@ mod tests {
             for isa in isas() {
                 let inputs = ForceInputs {
                     sell,
-                    x,
-                    step,
+                    x: &xi,
+                    dir,
                     anchors: Some(&sliced),
                     external: Some(&ei),
                     w: Some(&w),
@@ -1958,7 +1875,7 @@ mod tests {
                     "{isa:?}: Σ r·d {} vs {want_rd}",
                     sums.rd
                 );
-                assert_eq!(step.is_some(), want_rd != 0.0);
+                assert_eq!(dir.is_some(), want_rd != 0.0);
                 assert_eq!(*rd_bits.get_or_insert(sums.rd.to_bits()), sums.rd.to_bits());
             }
         }
@@ -2024,7 +1941,7 @@ mod tests {
             let inputs = ForceInputs {
                 sell,
                 x: &x,
-                step: None,
+                dir: None,
                 anchors: None,
                 external: None,
                 w: None,
@@ -2097,24 +2014,69 @@ mod tests {
             .collect();
         let bits = |v: &Vec3| v.to_array().map(f32::to_bits);
         for isa in isas() {
-            for fused in [false, true] {
-                let (mut d, mut x) = (d0.clone(), x0.clone());
-                let step = fused.then_some((x.as_mut_slice(), a));
-                let got = direction(isa, &mut d, &r, &w, beta, step);
-                assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
-                for (a, b) in d.iter().zip(&want_d) {
-                    assert_eq!(bits(a), bits(b));
-                }
-                let want_x = if fused { &want_x } else { &x0 };
-                for (a, b) in x.iter().zip(want_x) {
-                    assert_eq!(bits(a), bits(b), "{isa:?}");
-                }
+            let mut d = d0.clone();
+            let got = direction(isa, &mut d, &r, &w, beta);
+            assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
+            for (a, b) in d.iter().zip(&want_d) {
+                assert_eq!(bits(a), bits(b));
             }
             let mut x = x0.clone();
-            advance(isa, &mut x, &d0, a);
+            advance(isa, &mut x, &d0, a, &mut Vec::new());
             for (a, b) in x.iter().zip(&want_x) {
                 assert_eq!(bits(a), bits(b), "{isa:?}");
             }
+        }
+    }
+
+    /// The solver steps `x` to its trial point in place and undoes a rejected trial: the undo
+    /// must give back every bit, also where `x + a d − a d` rounds to another float.
+    #[test]
+    fn a_step_is_undone_bit_for_bit() {
+        // 1003 vertices (full blocks and a tail), magnitudes from 1e-3 to 1e3 of both signs,
+        // and steps large enough that some sums cross into another binade.
+        let n = 1003;
+        let x0: Vec<Vec3> = (0..n)
+            .map(|i| {
+                let t = i as f32;
+                Vec3::new(
+                    (t * 0.37).sin() * 1e3,
+                    (t * 1.3).cos() * 1e-3,
+                    (t * 0.71).sin(),
+                )
+            })
+            .collect();
+        let d: Vec<Vec3> = (0..n)
+            .map(|i| {
+                let t = i as f32;
+                Vec3::new(
+                    (t * 2.1).cos() * 40.0,
+                    (t * 0.9).sin() * 1e-4,
+                    (t * 0.13).cos(),
+                )
+            })
+            .collect();
+        let a = 0.0371f32;
+        let bits = |v: &[Vec3]| {
+            v.iter()
+                .flat_map(|v| v.to_array())
+                .map(f32::to_bits)
+                .collect::<Vec<_>>()
+        };
+        // The plain undo `x + a d − a d` misses some floats: the spill path is exercised.
+        let plain: Vec<Vec3> = x0
+            .iter()
+            .zip(&d)
+            .map(|(x, d)| d.mul_add(Vec3::splat(-a), d.mul_add(Vec3::splat(a), *x)))
+            .collect();
+        assert_ne!(bits(&plain), bits(&x0));
+        for isa in isas() {
+            let mut x = x0.clone();
+            let mut spill = Vec::new();
+            advance(isa, &mut x, &d, a, &mut spill);
+            assert!(!spill.is_empty(), "{isa:?}");
+            assert!(spill.len() < 3 * n / 10, "{isa:?}: {} spilled", spill.len());
+            retreat(isa, &mut x, &d, a, &spill);
+            assert_eq!(bits(&x), bits(&x0), "{isa:?}");
         }
     }
 

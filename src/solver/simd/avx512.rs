@@ -111,19 +111,6 @@ impl Lanes for Avx512 {
         unsafe { A.vec3s(p, n, rows, j) }
     }
     #[inline(always)]
-    unsafe fn vec3s_step(
-        self,
-        p: *const f32,
-        dp: *const f32,
-        a: Self::F,
-        n: usize,
-        rows: &super::Rows,
-        j: Self::I,
-    ) -> [Self::F; 3] {
-        // SAFETY: the caller's contract.
-        unsafe { A.vec3s_step(p, dp, a, n, rows, j) }
-    }
-    #[inline(always)]
     unsafe fn vec3s_pair(
         self,
         p: *const f32,
@@ -143,6 +130,10 @@ impl Lanes for Avx512 {
     #[inline(always)]
     fn negative(self, a: Self::F) -> Self::M {
         A.negative(a)
+    }
+    #[inline(always)]
+    fn same_bits(self, a: Self::F, b: Self::F) -> bool {
+        A.same_bits(a, b)
     }
     #[inline(always)]
     fn dfrom(self, a: [f64; 8]) -> Self::D {
