@@ -72,6 +72,10 @@ impl<P: Projection + ?Sized> Projection for Timed<'_, P> {
         self.inner.active_contacts()
     }
 
+    fn moved_vertices(&self) -> Option<&[u32]> {
+        self.inner.moved_vertices()
+    }
+
     fn hold(&mut self, held: &[bool]) {
         self.inner.hold(held);
     }

@@ -1242,6 +1242,7 @@ impl Projection for SkinCollision {
         let n = self.vertex_count();
         self.active.clear();
         self.active_owner.clear();
+        self.view.moved.clear();
         if x.len() != n || order.len() != n {
             self.diagnostics.length_mismatch = true;
             return false;
@@ -1282,6 +1283,11 @@ impl Projection for SkinCollision {
     /// surface is not reported: a hold would snap it onto the surface.
     fn active_contacts(&self) -> &[ActiveContact] {
         &self.active
+    }
+
+    /// The vertices the last projection resolved to a new position, in no particular order.
+    fn moved_vertices(&self) -> Option<&[u32]> {
+        Some(&self.view.moved)
     }
 
     /// Held contacts are kept at exactly the thickness by the next projection: a vertex that

@@ -43,6 +43,8 @@ pub(super) struct View {
     /// skip test is [`Holder::keeps`] instead (their `limit2` fails every pass), and they are
     /// reported as touching when it passes.
     holders: Vec<Holder>,
+    /// The vertices (internal indices) the last pass moved.
+    pub(super) moved: Vec<u32>,
 }
 
 /// A vertex held on a face: where it was resolved, its contact normal, the range of its
@@ -358,6 +360,7 @@ impl SkinCollision {
                 if r.moved {
                     x[i] = r.p;
                     pass.counters.moved += 1;
+                    view.moved.push(r.i);
                 }
                 view.prev[i] = r.p;
                 (view.at[i], view.limit2[i]) = r.test;

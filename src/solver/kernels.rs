@@ -85,6 +85,44 @@ impl Frame<'_> {
         self.gather_inputs(x, None, w, r, partial)
     }
 
+    /// [`gather`](Self::gather) again after some vertices moved since the last gather (whose
+    /// per-chunk sums `partial` holds): only the chunks `stale` (sorted, every chunk whose
+    /// forces read a moved vertex) are recomputed. The others keep their forces and sums, as a
+    /// whole gather would compute them again bit for bit, except the two products it takes
+    /// against the old force and the direction: `Σ w r·r_old` is `Σ w r·r` there (the force
+    /// did not change, and both are summed with the same operations) and `Σ r·d` is 0 (no
+    /// direction). The result equals [`gather`](Self::gather)'s to the bit.
+    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
+    pub fn regather(
+        &self,
+        x: &[Vec3],
+        w: Option<&[f32]>,
+        r: &mut [Vec3],
+        partial: &mut [Sums],
+        stale: &[u32],
+    ) -> Sums {
+        for p in partial.iter_mut() {
+            p.rz_old = p.rzr;
+            p.rd = 0.0;
+        }
+        let inputs = ForceInputs {
+            sell: self.sell,
+            x,
+            dir: None,
+            anchors: self.anchors,
+            external: self.external,
+            w,
+        };
+        let (rs, ps) = (Chunked::new(r, CHUNK), Chunked::new(partial, 1));
+        self.par.for_each(stale.len(), |k| {
+            let c = stale[k] as usize;
+            // SAFETY: `stale` has no repeats: each chunk index once per loop.
+            let (r, p) = unsafe { (rs.chunk(c), ps.chunk(c)) };
+            p[0] = inputs.chunk(self.isa, c * CHUNK, r);
+        });
+        total(partial)
+    }
+
     /// [`gather`](Self::gather) after a step along `d`, with `Σ r·d` ([`Sums::rd`]).
     pub fn gather_along(
         &self,

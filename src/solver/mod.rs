@@ -157,7 +157,8 @@ pub struct ActiveContact {
 ///
 /// `x` is in the system's internal order; `order[i]` is the caller's index of internal vertex
 /// `i`. [`project`](Self::project) returns `true` if any vertex moved (the solver then
-/// recomputes the forces).
+/// recomputes the forces: everywhere, or only where they read a vertex that
+/// [`moved_vertices`](Self::moved_vertices) names).
 ///
 /// A projection that reports its [`active_contacts`](Self::active_contacts) makes the solve
 /// converge on the contact set: for a contact whose net force pushes into the collider, the
@@ -179,6 +180,14 @@ pub trait Projection: Send {
     /// the constraint surface), sorted by vertex; a vertex may have one entry per contact plane.
     fn active_contacts(&self) -> &[ActiveContact] {
         &[]
+    }
+
+    /// The vertices (indices into the `x` of the last [`project`](Self::project), the
+    /// solver's order) that it moved, when the projection knows them: the solver then
+    /// recomputes the forces only where they read a moved vertex. `None` (the default): any
+    /// vertex may have moved.
+    fn moved_vertices(&self) -> Option<&[u32]> {
+        None
     }
 
     /// Which of the last [`active_contacts`](Self::active_contacts) the solver holds (one flag
@@ -352,6 +361,9 @@ pub struct SpringSystem {
     /// the Jacobi preconditioner, the same for every solve (only the anchors are added per
     /// solve).
     spring_diagonal: Vec<f32>,
+    /// Per chunk of [`kernels::CHUNK`] vertices (internal order), the chunks whose forces read
+    /// one of its vertices (its own included), sorted.
+    chunk_readers: Vec<Vec<u32>>,
     edge_count: usize,
 }
 
@@ -425,9 +437,26 @@ impl SpringSystem {
                 entries,
                 limit: sell::MAX_ENTRIES,
             })?;
+        let mut chunk_readers: Vec<Vec<u32>> =
+            (0..kernels::chunks(n) as u32).map(|c| vec![c]).collect();
+        for &[a, b] in edges {
+            let (ca, cb) = (
+                rank[a as usize] as usize / kernels::CHUNK,
+                rank[b as usize] as usize / kernels::CHUNK,
+            );
+            if ca != cb {
+                chunk_readers[ca].push(cb as u32);
+                chunk_readers[cb].push(ca as u32);
+            }
+        }
+        for readers in &mut chunk_readers {
+            readers.sort_unstable();
+            readers.dedup();
+        }
         Ok(Self {
             order,
             rank,
+            chunk_readers,
             spring_diagonal: sell.stiffness_diagonal(),
             sell,
             edge_count: edges.len(),
@@ -481,6 +510,22 @@ impl SpringSystem {
     /// with the springs ([`bytes_per_vertex`](Self::bytes_per_vertex)), about 91-94 B of
     /// solver state per vertex on a triangle mesh.
     pub const VECTOR_BYTES_PER_VERTEX: usize = 3 * 12 + 4;
+
+    /// The chunks whose forces read one of the `moved` vertices (internal indices), into
+    /// `chunks` (sorted, no repeats).
+    fn readers_of(&self, moved: &[u32], chunks: &mut Vec<u32>) {
+        chunks.clear();
+        let mut last = usize::MAX;
+        for &v in moved {
+            let c = v as usize / kernels::CHUNK;
+            if c != last {
+                chunks.extend(self.chunk_readers.get(c).into_iter().flatten());
+                last = c;
+            }
+        }
+        chunks.sort_unstable();
+        chunks.dedup();
+    }
 
     fn to_internal<T: Copy + Send + Sync>(&self, data: &[T]) -> Vec<T> {
         self.order.par_iter().map(|&o| data[o as usize]).collect()
@@ -621,6 +666,7 @@ impl SpringSystem {
         let mut scalar_scratch = vec![0.0f64; chunks];
         let mut r = vec![Vec3::ZERO; n];
         let mut spills = Spills::new();
+        let mut stale = Vec::new();
         // The projection's active contacts and the ones held (their normal force is taken by
         // the contact, so it leaves the residual and the directions).
         let mut contacts = ContactSet::default();
@@ -756,7 +802,15 @@ impl SpringSystem {
             let mut hold_restart = false;
             if let Some(p) = projection.as_deref_mut() {
                 if p.project(&mut xi, &self.order) {
-                    sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
+                    // The forces again where they read a moved vertex (every chunk when the
+                    // projection does not say which moved): the same sums as a whole gather.
+                    sums = match p.moved_vertices() {
+                        Some(moved) => {
+                            self.readers_of(moved, &mut stale);
+                            frame.regather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch, &stale)
+                        }
+                        None => frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch),
+                    };
                     energy = sums.energy;
                     rd = dot(par, &r, &d, &mut scalar_scratch);
                 }

@@ -726,3 +726,61 @@ fn contact_set_converges_to_the_kkt_point_on_a_floor() {
         report.iterations
     );
 }
+
+/// After a projection moved a few vertices, the solver gathers the forces again only in the
+/// chunks that read a moved vertex: forces and every sum must be those of a whole gather, bit
+/// for bit, including a move at a chunk boundary (whose readers lie in two chunks).
+#[test]
+fn a_gather_after_a_few_vertices_moved_equals_a_whole_one_bit_for_bit() {
+    // 6,400 vertices: seven chunks.
+    let (mesh, k, x, anchors, forces) = loaded_sheet(80);
+    let s = SpringSystem::from_mesh(&mesh, &k).unwrap();
+    let n = s.vertex_count();
+    let chunks = kernels::chunks(n);
+    assert!(chunks >= 5);
+    let (xi, ext) = (s.to_internal(&x), s.to_internal(&forces));
+    let sliced = SlicedAnchors::new(&anchors, &s.order);
+    let frame = s.frame(Some(&ext), Some(&sliced), Par::Pool);
+    let w = frame.inverse_diagonal(&vec![false; n]);
+    let d: Vec<Vec3> = (0..n)
+        .map(|i| Vec3::new((i as f32 * 0.3).sin(), 0.2, (i as f32 * 0.7).cos()) * 1e-3)
+        .collect();
+    // The trial gather the solver did at `xi` (after some older force in `r`).
+    let mut r: Vec<Vec3> = (0..n).map(|i| Vec3::splat((i % 5) as f32 * 0.1)).collect();
+    let mut partial = vec![Sums::default(); chunks];
+    frame.gather_along(&xi, &d, Some(&w), &mut r, &mut partial);
+    // The projection moves a vertex at the end of chunk 1 and two inside chunk 3.
+    let moved = [
+        kernels::CHUNK as u32 * 2 - 1,
+        kernels::CHUNK as u32 * 3 + 17,
+        kernels::CHUNK as u32 * 3 + 400,
+    ];
+    let mut x1 = xi.clone();
+    for &v in &moved {
+        x1[v as usize] += Vec3::new(2e-3, -1e-3, 3e-3);
+    }
+    let (mut r_whole, mut p_whole) = (r.clone(), partial.clone());
+    let whole = frame.gather(&x1, Some(&w), &mut r_whole, &mut p_whole);
+    let mut stale = Vec::new();
+    s.readers_of(&moved, &mut stale);
+    assert!(stale.len() < chunks, "some chunk is kept: {stale:?}");
+    assert!(
+        stale.contains(&2),
+        "chunk 2 reads the vertex at the end of chunk 1"
+    );
+    let again = frame.regather(&x1, Some(&w), &mut r, &mut partial, &stale);
+    let differs = r
+        .iter()
+        .zip(&r_whole)
+        .position(|(a, b)| a.to_array().map(f32::to_bits) != b.to_array().map(f32::to_bits));
+    assert_eq!(differs, None, "the first vertex whose force differs");
+    for (got, want) in [
+        (again.energy, whole.energy),
+        (again.rr, whole.rr),
+        (again.rzr, whole.rzr),
+        (again.rz_old, whole.rz_old),
+        (again.rd, whole.rd),
+    ] {
+        assert_eq!(got.to_bits(), want.to_bits(), "{again:?} vs {whole:?}");
+    }
+}
