@@ -82,7 +82,7 @@ impl Frame<'_> {
         r: &mut [Vec3],
         partial: &mut [Sums],
     ) -> Sums {
-        self.gather_inputs(x, None, w, r, partial)
+        self.gather_inputs(x, None, w, r, partial, None)
     }
 
     /// [`gather`](Self::gather) again after some vertices moved since the last gather (whose
@@ -92,7 +92,6 @@ impl Frame<'_> {
     /// against the old force and the direction: `Σ w r·r_old` is `Σ w r·r` there (the force
     /// did not change, and both are summed with the same operations) and `Σ r·d` is 0 (no
     /// direction). The result equals [`gather`](Self::gather)'s to the bit.
-    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
     pub fn regather(
         &self,
         x: &[Vec3],
@@ -105,22 +104,7 @@ impl Frame<'_> {
             p.rz_old = p.rzr;
             p.rd = 0.0;
         }
-        let inputs = ForceInputs {
-            sell: self.sell,
-            x,
-            dir: None,
-            anchors: self.anchors,
-            external: self.external,
-            w,
-        };
-        let (rs, ps) = (Chunked::new(r, CHUNK), Chunked::new(partial, 1));
-        self.par.for_each(stale.len(), |k| {
-            let c = stale[k] as usize;
-            // SAFETY: `stale` has no repeats: each chunk index once per loop.
-            let (r, p) = unsafe { (rs.chunk(c), ps.chunk(c)) };
-            p[0] = inputs.chunk(self.isa, c * CHUNK, r);
-        });
-        total(partial)
+        self.gather_inputs(x, None, w, r, partial, Some(stale))
     }
 
     /// [`gather`](Self::gather) after a step along `d`, with `Σ r·d` ([`Sums::rd`]).
@@ -132,9 +116,10 @@ impl Frame<'_> {
         r: &mut [Vec3],
         partial: &mut [Sums],
     ) -> Sums {
-        self.gather_inputs(x, Some(d), w, r, partial)
+        self.gather_inputs(x, Some(d), w, r, partial, None)
     }
 
+    /// The force gather over the chunks `only` (sorted, no repeats; `None`: every chunk).
     #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
     fn gather_inputs(
         &self,
@@ -143,6 +128,7 @@ impl Frame<'_> {
         w: Option<&[f32]>,
         r: &mut [Vec3],
         partial: &mut [Sums],
+        only: Option<&[u32]>,
     ) -> Sums {
         let inputs = ForceInputs {
             sell: self.sell,
@@ -153,8 +139,10 @@ impl Frame<'_> {
             w,
         };
         let (rs, ps) = (Chunked::new(r, CHUNK), Chunked::new(partial, 1));
-        self.par.for_each(ps.chunks(), |c| {
-            // SAFETY: each chunk index once per loop.
+        let count = only.map_or(ps.chunks(), <[u32]>::len);
+        self.par.for_each(count, |k| {
+            let c = only.map_or(k, |only| only[k] as usize);
+            // SAFETY: each chunk index once per loop (`only` has no repeats).
             let (r, p) = unsafe { (rs.chunk(c), ps.chunk(c)) };
             p[0] = inputs.chunk(self.isa, c * CHUNK, r);
         });
