@@ -1520,3 +1520,50 @@ fn vertices_held_on_a_face_report_what_resolving_them_finds() {
         fresh.active_contacts().len()
     );
 }
+
+/// The solver gathers the forces again only around the vertices a projection names as moved
+/// (`Projection::moved_vertices`): every vertex whose position changed must be named.
+#[test]
+fn a_projection_names_every_vertex_it_moves() {
+    let (v, t) = blob(20, 30);
+    let h = 0.01;
+    let config = ContactConfig {
+        thickness_m: h,
+        ..ContactConfig::DEFAULT
+    };
+    let mut skin = SkinCollision::new(400, config).unwrap();
+    skin.add_collider(ColliderMesh::from_mesh(v.clone(), t.clone()).unwrap());
+    let mut rng = Lcg(11);
+    // Around the blob's faces, from inside it to beyond the band.
+    let mut x: Vec<Vec3> = (0..400)
+        .map(|k| {
+            let [a, b, c] = t[(k * 13) % t.len()].map(|i| v[i as usize]);
+            (a + b + c) / 3.0 + (b - a).cross(c - a).normalize() * h * (4.0 * rng.next() - 1.5)
+        })
+        .collect();
+    let order: Vec<u32> = (0..400).rev().collect();
+    let mut named_any = 0;
+    for pass in 0..20 {
+        let before = x.clone();
+        skin.project(&mut x, &order);
+        let mut named = skin.moved_vertices().expect("the skin names them").to_vec();
+        named.sort_unstable();
+        let changed: Vec<u32> = (0..x.len() as u32)
+            .filter(|&i| {
+                let i = i as usize;
+                x[i].to_array().map(f32::to_bits) != before[i].to_array().map(f32::to_bits)
+            })
+            .collect();
+        assert!(
+            changed.iter().all(|i| named.binary_search(i).is_ok()),
+            "pass {pass}: moved {changed:?}, named {named:?}"
+        );
+        named_any += named.len();
+        let all = vec![true; skin.active_contacts().len()];
+        skin.hold(&all);
+        for p in &mut x {
+            *p += Vec3::new(rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5) * 2e-3;
+        }
+    }
+    assert!(named_any > 400, "projections moved vertices: {named_any}");
+}
