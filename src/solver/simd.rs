@@ -1082,8 +1082,16 @@ unsafe fn own_vec3<S: Lanes>(l: S, sell: &Sell, s: usize, own: S::I, v: &[Vec3])
     }
 }
 
-/// Net force (before pinning) and twice the energy of the vertices of slice `s`, at `x`
-/// (`x + a d` with `STEP`). Twice: every term without its factor ½, halved once per chunk
+/// The first entry of each slot of `entries` (a whole number of slots): a plain counted loop,
+/// cheaper than `step_by` in the kernels' inner loops.
+#[inline(always)]
+fn slots(entries: &std::ops::Range<usize>) -> impl Iterator<Item = usize> + use<> {
+    let start = entries.start;
+    (0..(entries.end - start) / LANES).map(move |k| start + k * LANES)
+}
+
+/// Net force (before pinning) and twice the energy of the vertices of slice `s`, at `x`.
+/// Twice: every term without its factor ½, halved once per chunk
 /// (scaling by 2 is exact, so the halved sum has the bits of the sum of the halved terms).
 ///
 /// # Safety
@@ -1141,7 +1149,7 @@ unsafe fn force_slice<S: Lanes, E: Ends>(
     let (lower, upper) = (parts.lower, parts.upper);
     match parts.refs {
         Refs::Near { refs, base } => {
-            for e in lower.clone().step_by(LANES) {
+            for e in slots(&lower) {
                 // SAFETY: a reference per lower entry of the slice, each naming a pair in
                 // bounds (by construction).
                 spring!(e, unsafe {
@@ -1150,14 +1158,14 @@ unsafe fn force_slice<S: Lanes, E: Ends>(
             }
         }
         Refs::Far { refs } => {
-            for e in lower.clone().step_by(LANES) {
+            for e in slots(&lower) {
                 let idx = l.load_i(&refs[e - lower.start..e - lower.start + LANES]);
                 // SAFETY: every reference names a pair in bounds (by construction).
                 spring!(e, unsafe { l.pairs_at(kr, idx) });
             }
         }
     }
-    for e in upper.clone().step_by(LANES) {
+    for e in slots(&upper) {
         // SAFETY: the slot's eight pairs are in bounds (checked by the caller).
         let (k, rest) = unsafe { l.pairs(kr.add(2 * (parts.pairs + e - upper.start))) };
         // A negative stiffness marks a spring to a lower vertex (see `Sell::kr`).
@@ -1362,14 +1370,15 @@ impl ForceInputs<'_> {
     }
 }
 
-/// The direction update `d = w·r + β d` of one chunk; returns `Σ r·d` summed in vertex order
-/// (the same operations as the plain loop, eight vertices at a time).
+/// The direction update `d = w·r + β d` of one chunk; returns `Σ r·d`, each vertex's product
+/// in f32 (the plain loop's operations) summed in f64 per lane (lane = vertex mod 8), the lanes
+/// added in order at the end: eight independent sums, not one chain of dependent additions.
 #[inline(always)]
 fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
     assert!(r.len() == d.len() && w.len() == d.len());
     let full = d.len() / LANES * LANES;
     let b = l.splat(beta);
-    let mut slope = 0.0f64;
+    let mut acc = l.dsplat(0.0);
     // Elementwise on the floats as stored (no transposes): eight vertices are three registers
     // of eight floats; only the products `r·d` are regrouped per component for the dot.
     for o in (0..full).step_by(LANES) {
@@ -1391,16 +1400,17 @@ fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: 
             unsafe { l.store_at(dp.add(8 * k), *nv) };
         }
         let [px, py, pz] = l.deinterleave(std::array::from_fn(|k| l.mul(rv[k], nv[k])));
-        let rd = l.add(l.add(px, py), pz);
-        for v in l.store(rd) {
-            slope += v as f64;
+        acc = l.dadd(acc, l.widen(l.add(l.add(px, py), pz)));
+    }
+    if full < d.len() {
+        let mut tail = [0.0f64; LANES];
+        for i in full..d.len() {
+            d[i] = d[i].mul_add(Vec3::splat(beta), r[i] * w[i]);
+            tail[i - full] = r[i].dot(d[i]) as f64;
         }
+        acc = l.dadd(acc, l.dfrom(tail));
     }
-    for i in full..d.len() {
-        d[i] = d[i].mul_add(Vec3::splat(beta), r[i] * w[i]);
-        slope += r[i].dot(d[i]) as f64;
-    }
-    slope
+    l.dstore(acc).iter().fold(0.0f64, |a, b| a + b)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -1555,7 +1565,7 @@ fn curvature_chunk<S: Lanes>(
             let mut vertex = zero;
         let (upper, pairs) = sell.upper_pairs(s);
         let kr = sell.kr.as_ptr().cast::<f32>();
-        for e in upper.clone().step_by(LANES) {
+        for e in slots(&upper) {
             let (j, rows) = ends.at(l, e);
             // SAFETY: `e` is an upper entry of slice `s`: its slot's pairs are in bounds
             // (the arrays checked above).
@@ -1995,16 +2005,25 @@ mod tests {
             let t = i as f32 * a;
             Vec3::new(t.sin() * 1e3, (t * 1.7).cos() * 1e-3, (t * 0.3).sin() + 0.1)
         };
+        // Directions from 1e-6 to 1e6 (every third vertex, across the lanes): products `r·d`
+        // from ~1 to ~1e12, whose f64 sum rounds differently in another order.
         let r: Vec<Vec3> = (0..n).map(|i| v(i, 0.37)).collect();
-        let d0: Vec<Vec3> = (0..n).map(|i| v(i, 1.91)).collect();
-        let w: Vec<f32> = (0..n).map(|i| 1.0 / (3.0 + i as f32)).collect();
+        let d0: Vec<Vec3> = (0..n)
+            .map(|i| v(i, 1.91) * [1.0, 1e-6, 1e6][i % 3])
+            .collect();
+        let w: Vec<f32> = (0..n).map(|i| 1e-9 / (3.0 + i as f32)).collect();
         let beta = 0.618_034f32;
+        // The plain loop, `Σ r·d` summed per lane (vertex mod 8), the lanes in order.
         let mut want_d = d0.clone();
-        let mut want = 0.0f64;
+        let (mut lanes, mut in_order) = ([0.0f64; LANES], 0.0f64);
         for i in 0..n {
             want_d[i] = want_d[i].mul_add(Vec3::splat(beta), r[i] * w[i]);
-            want += r[i].dot(want_d[i]) as f64;
+            lanes[i % LANES] += r[i].dot(want_d[i]) as f64;
+            in_order += r[i].dot(want_d[i]) as f64;
         }
+        let want = lanes.iter().fold(0.0f64, |a, b| a + b);
+        // The data tells the two orders apart.
+        assert_ne!(want.to_bits(), in_order.to_bits());
         let x0: Vec<Vec3> = (0..n).map(|i| v(i, 0.53)).collect();
         let a = 0.0371f32;
         let want_x: Vec<Vec3> = x0
