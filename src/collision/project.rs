@@ -7,8 +7,9 @@
 //! a scatter per vertex per pass. Instead, the skip test of every vertex is kept here in the
 //! solver's order (`[at, limit²]`, 16 bytes, for the colliders' travel of the relaxation, which
 //! is constant while it runs), together with the positions of the last pass. A pass reads them
-//! sequentially next to the positions and lists the few vertices that fail; only those are
-//! resolved, in parallel over the caller's chunks of state they own.
+//! sequentially next to the positions, and resolves the few vertices that fail right there: one
+//! parallel loop over groups of the solver's order, each vertex's state read and written at
+//! its caller's index (a permutation, so the groups touch disjoint state).
 //!
 //! The test is conservative (it implies [`Reach::skips`]), so a pass resolves a superset of the
 //! vertices the caller-order pass resolves, and resolving a vertex the reserve would have
@@ -111,22 +112,22 @@ fn test_of(r: &Reach, travel: f64) -> (Vec3, f32) {
     (r.at, limit2)
 }
 
-/// One resolved vertex.
-#[derive(Clone, Copy)]
-struct Resolved {
-    /// Place among the pass's resolved vertices in the solver's order.
-    j: u32,
-    /// Internal index.
-    i: u32,
-    /// Caller's index.
-    o: u32,
-    p: Vec3,
-    moved: bool,
-    unresolved: bool,
-    touching: bool,
-    /// Its hold, if any.
-    holder: Option<Holder>,
-    test: (Vec3, f32),
+/// What one group of a pass did (see `pass_on`).
+#[derive(Default)]
+struct GroupPass {
+    counters: Counters,
+    /// Vertices whose skip test passed.
+    skipped: u64,
+    /// Held vertices their hold kept.
+    kept: u64,
+    /// The vertices resolved to a new position (internal indices, increasing).
+    moved: Vec<u32>,
+    /// The vertices still too close after their resolution (caller's indices).
+    unresolved: Vec<u32>,
+    /// `(internal, caller's)` index of every vertex touching a collider, by internal index.
+    touching: Vec<(u32, u32)>,
+    /// The holds after the pass, by internal index.
+    holders: Vec<Holder>,
 }
 
 impl SkinCollision {
@@ -166,7 +167,14 @@ impl SkinCollision {
         Par::current(|par| Some(self.pass_on(par, x, &travel, travel_sum)))
     }
 
-    /// [`project_pass`](Self::project_pass) once the view is up to date, its loops on `par`.
+    /// [`project_pass`](Self::project_pass) once the view is up to date, its loop on `par`.
+    ///
+    /// One parallel loop over groups of vertices in the solver's order: each group tests its
+    /// vertices' skips and resolves the ones that fail right there. A vertex's state is kept in
+    /// the caller's order, at its rank (`rank_of`, a permutation): each one is resolved by the
+    /// one group that holds its internal index, so the groups touch disjoint state, and a
+    /// resolution reads and writes only its own vertex's (the counters are sums). The groups'
+    /// results are joined in group order, which is the solver's order.
     #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
     fn pass_on(
         &mut self,
@@ -177,102 +185,6 @@ impl SkinCollision {
     ) -> (ChunkPass, Vec<(u32, u32)>) {
         let nc = self.colliders.len();
         let n = x.len();
-        // The skip test of every vertex, in order; the ones that fail are listed with their
-        // last position, and the others' last positions become their positions.
-        let view = &mut self.view;
-        let groups = n.div_ceil(GROUP);
-        let mut per_group: Vec<(Vec<(u32, Vec3)>, u64)> = vec![(Vec::new(), 0); groups];
-        {
-            let (xs, prevs) = (Chunked::new(x, GROUP), Chunked::new(&mut view.prev, GROUP));
-            let out = Chunked::new(&mut per_group, 1);
-            let (at, limit2) = (&view.at, &view.limit2);
-            par.for_each_min(groups, SKIP_TASK_GROUPS, |g| {
-                // SAFETY: each group index once per loop.
-                let (xs, prevs, out) = unsafe { (xs.chunk(g), prevs.chunk(g), out.chunk(g)) };
-                let range = g * GROUP..g * GROUP + xs.len();
-                // The blocks' failures first, so that the list is allocated once (a group
-                // with none allocates nothing).
-                let mut masks = [0u64; GROUP / BLOCK];
-                for (mask, ((xs, at), limit2)) in masks.iter_mut().zip(
-                    xs.chunks(BLOCK)
-                        .zip(at[range.clone()].chunks(BLOCK))
-                        .zip(limit2[range].chunks(BLOCK)),
-                ) {
-                    *mask = failures(xs, at, limit2);
-                }
-                let failing: u32 = masks.iter().map(|m| m.count_ones()).sum();
-                let mut listed = Vec::with_capacity(failing as usize);
-                for (block, ((mut bits, prevs), xs)) in masks
-                    .into_iter()
-                    .zip(prevs.chunks_mut(BLOCK))
-                    .zip(xs.chunks(BLOCK))
-                    .enumerate()
-                {
-                    while bits != 0 {
-                        let k = bits.trailing_zeros() as usize;
-                        bits &= bits - 1;
-                        listed.push(((g * GROUP + block * BLOCK + k) as u32, prevs[k]));
-                    }
-                    // Block by block, while in cache (and below the size from which `memcpy`
-                    // switches to `rep movsb`, which callgrind counts byte by byte).
-                    prevs.copy_from_slice(xs);
-                }
-                let skipped = (xs.len() - listed.len()) as u64;
-                out[0] = (listed, skipped);
-            });
-        }
-        let mut counters = Counters::default();
-        // The failing vertices in the solver's order (`i` increasing), then grouped by the
-        // caller's chunk that owns their state: a stable counting sort (no comparisons), each
-        // entry keeping its place `j` in the solver's order. Within a chunk they are resolved
-        // in the solver's order: a resolution reads and writes only its own vertex's state
-        // (the counters are sums), so the order changes nothing.
-        let mut listed: Vec<(u32, u32, Vec3)> =
-            Vec::with_capacity(per_group.iter().map(|(l, _)| l.len()).sum());
-        for (l, skipped) in per_group {
-            counters.skipped_vertices += skipped;
-            counters.skipped_bound += skipped * nc as u64;
-            listed.extend(
-                l.into_iter()
-                    .map(|(i, last)| (i, self.rank_of[i as usize], last)),
-            );
-        }
-        // The held vertices (all listed: their `limit2` fails) that their hold keeps: not
-        // resolved, still touching as the last pass left them. `listed` and `holders` are
-        // both by increasing internal index.
-        let mut skipped_holders: Vec<Holder> = Vec::new();
-        if !self.view.holders.is_empty() {
-            let mut holders = self.view.holders.iter().peekable();
-            listed.retain(|&(i, _, _)| {
-                while holders.next_if(|h| h.i < i).is_some() {}
-                match holders.peek() {
-                    Some(h) if h.i == i && h.keeps(x[i as usize]) => {
-                        skipped_holders.push(**h);
-                        false
-                    }
-                    _ => true,
-                }
-            });
-        }
-        counters.contacts += skipped_holders.len() as u64;
-        counters.skipped_vertices += skipped_holders.len() as u64;
-        let chunks = n.div_ceil(CHUNK);
-        let mut bounds = vec![0usize; chunks + 1];
-        for &(_, o, _) in &listed {
-            bounds[o as usize / CHUNK + 1] += 1;
-        }
-        for c in 0..chunks {
-            bounds[c + 1] += bounds[c];
-        }
-        let mut fill = bounds.clone();
-        let mut grouped = vec![(0u32, 0u32, 0u32, Vec3::ZERO); listed.len()];
-        for (j, &(i, o, last)) in listed.iter().enumerate() {
-            let at = &mut fill[o as usize / CHUNK];
-            grouped[*at] = (j as u32, i, o, last);
-            *at += 1;
-        }
-        // The chunks with something to resolve, each resolved by one thread.
-        let busy: Vec<usize> = (0..chunks).filter(|&c| bounds[c + 1] > bounds[c]).collect();
         let ctx = Ctx {
             colliders: &self.colliders,
             travel,
@@ -281,110 +193,121 @@ impl SkinCollision {
             swept: true,
             face_holds: self.face_holds,
         };
-        let xs = &*x;
-        let mut resolved = vec![(Vec::new(), Counters::default()); busy.len()];
+        let groups = n.div_ceil(GROUP);
+        let mut outs: Vec<GroupPass> = (0..groups).map(|_| GroupPass::default()).collect();
+        let view = &mut self.view;
         {
-            let (reach, states) = (
-                Chunked::new(&mut self.reach, CHUNK),
-                Chunked::new(&mut self.states, CHUNK),
+            let (xs, prevs) = (Chunked::new(x, GROUP), Chunked::new(&mut view.prev, GROUP));
+            let (ats, limits) = (
+                Chunked::new(&mut view.at, GROUP),
+                Chunked::new(&mut view.limit2, GROUP),
             );
-            let slots = Chunked::new(&mut self.slots, CHUNK * nc);
-            let patches = Chunked::new(&mut self.patches, CHUNK * nc);
-            let out = Chunked::new(&mut resolved, 1);
-            let thickness = &self.thickness;
-            let resolve = |b: usize| {
-                let chunk = busy[b];
-                // SAFETY: each busy chunk once per loop (`busy` has no repeats).
-                let (reach, states, slots, patches, out) = unsafe {
+            let out = Chunked::new(&mut outs, 1);
+            // The caller-order state, one vertex at a time.
+            let (reach, states) = (
+                Chunked::new(&mut self.reach, 1),
+                Chunked::new(&mut self.states, 1),
+            );
+            let (slots, patches) = (
+                Chunked::new(&mut self.slots, nc),
+                Chunked::new(&mut self.patches, nc),
+            );
+            let (rank_of, thickness, holders) = (&self.rank_of, &self.thickness, &view.holders);
+            par.for_each_min(groups, SKIP_TASK_GROUPS, |g| {
+                // SAFETY: each group index once per loop.
+                let (xs, prevs, ats, limits, out) = unsafe {
                     (
-                        reach.chunk(chunk),
-                        states.chunk(chunk),
-                        slots.chunk(chunk),
-                        patches.chunk(chunk),
-                        out.chunk(b),
+                        xs.chunk(g),
+                        prevs.chunk(g),
+                        ats.chunk(g),
+                        limits.chunk(g),
+                        &mut out.chunk(g)[0],
                     )
                 };
-                let hs = &thickness[chunk * CHUNK..];
-                let mut counters = Counters::default();
-                let done = grouped[bounds[chunk]..bounds[chunk + 1]]
+                let first = g * GROUP;
+                // This group's holders, by increasing internal index.
+                let mut held = holders[holders.partition_point(|h| (h.i as usize) < first)..]
                     .iter()
-                    .map(|&(j, i, o, last)| {
-                        let k = o as usize - chunk * CHUNK;
-                        let (mut p, mut last) = (xs[i as usize], last);
+                    .peekable();
+                for (b, ((xs, prevs), (at, limit2))) in xs
+                    .chunks_mut(BLOCK)
+                    .zip(prevs.chunks_mut(BLOCK))
+                    .zip(ats.chunks_mut(BLOCK).zip(limits.chunks_mut(BLOCK)))
+                    .enumerate()
+                {
+                    let mut bits = failures(xs, at, limit2);
+                    out.skipped += u64::from(xs.len() as u32 - bits.count_ones());
+                    while bits != 0 {
+                        let k = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        let i = (first + b * BLOCK + k) as u32;
+                        let o = rank_of[i as usize];
+                        // A vertex held on a face that its hold keeps: touching, as the last
+                        // pass left it (its skip test always fails).
+                        while held.next_if(|h| h.i < i).is_some() {}
+                        if let Some(h) = held.next_if(|h| h.i == i && h.keeps(xs[k])) {
+                            out.kept += 1;
+                            out.touching.push((i, o));
+                            out.holders.push(*h);
+                            continue;
+                        }
+                        let o_ = o as usize;
+                        // SAFETY: `o` is the rank of `i`, resolved by this group only.
+                        let (reach, state, slots, patches) = unsafe {
+                            (
+                                &mut reach.chunk(o_)[0],
+                                &mut states.chunk(o_)[0],
+                                slots.chunk(o_),
+                                patches.chunk(o_),
+                            )
+                        };
+                        let (mut p, mut last) = (xs[k], prevs[k]);
                         let (moved, unresolved) = ctx.resolve(
                             &mut p,
-                            hs[k],
-                            (&mut reach[k], &mut last),
-                            &mut states[k],
-                            (
-                                &mut slots[k * nc..(k + 1) * nc],
-                                &mut patches[k * nc..(k + 1) * nc],
-                            ),
-                            &mut counters,
+                            thickness[o_],
+                            (reach, &mut last),
+                            state,
+                            (slots, patches),
+                            &mut out.counters,
                         );
-                        Resolved {
-                            j,
-                            i,
-                            o,
-                            p,
-                            moved,
-                            unresolved,
-                            touching: states[k].touches[0].collider != NONE,
-                            holder: Holder::of(i, &reach[k], &states[k], travel_sum),
-                            test: test_of(&reach[k], travel_sum),
+                        if moved {
+                            xs[k] = p;
+                            out.moved.push(i);
                         }
-                    })
-                    .collect();
-                out[0] = (done, counters);
-            };
-            if listed.len() < PARALLEL_RESOLUTIONS {
-                (0..busy.len()).for_each(resolve);
-            } else {
-                par.for_each(busy.len(), resolve);
-            }
+                        if unresolved {
+                            out.unresolved.push(o);
+                        }
+                        if state.touches[0].collider != NONE {
+                            out.touching.push((i, o));
+                        }
+                        out.holders.extend(Holder::of(i, reach, state, travel_sum));
+                        (at[k], limit2[k]) = test_of(reach, travel_sum);
+                    }
+                    // Block by block, while in cache (and below the size from which `memcpy`
+                    // switches to `rep movsb`, which callgrind counts byte by byte).
+                    prevs.copy_from_slice(xs);
+                }
+            });
         }
-
-        let mut pass = ChunkPass {
-            counters,
-            unresolved: Vec::new(),
-        };
-        // The touching vertices go back to the solver's order through their places `j`, so do
-        // the new holders.
-        let mut touches = vec![None; listed.len()];
-        let mut held = vec![None; listed.len()];
-        let view = &mut self.view;
-        for (done, counters) in resolved {
-            pass.counters.add(&counters);
-            for r in done {
-                let i = r.i as usize;
-                if r.moved {
-                    x[i] = r.p;
-                    pass.counters.moved += 1;
-                    view.moved.push(r.i);
-                }
-                view.prev[i] = r.p;
-                (view.at[i], view.limit2[i]) = r.test;
-                if r.unresolved {
-                    pass.unresolved.push(r.o);
-                }
-                if r.touching {
-                    touches[r.j as usize] = Some((r.i, r.o));
-                }
-                held[r.j as usize] = r.holder;
-            }
+        // The groups' results in group order: the solver's order.
+        let mut pass = ChunkPass::default();
+        let mut touching = Vec::new();
+        let mut holders = Vec::with_capacity(view.holders.len());
+        for out in outs {
+            let c = &mut pass.counters;
+            c.add(&out.counters);
+            c.skipped_vertices += out.skipped + out.kept;
+            c.skipped_bound += out.skipped * nc as u64;
+            c.contacts += out.kept;
+            c.moved += out.moved.len() as u64;
+            view.moved.extend(out.moved);
+            pass.unresolved.extend(out.unresolved);
+            touching.extend(out.touching);
+            holders.extend(out.holders);
         }
         // Rare: a sort only when some vertex stayed unresolved.
         pass.unresolved.sort_unstable();
-        // The resolved and the skipped holders, and the touching ones, by internal index.
-        let rank_of = &self.rank_of;
-        let touched: Vec<(u32, u32)> = touches.into_iter().flatten().collect();
-        let kept: Vec<(u32, u32)> = skipped_holders
-            .iter()
-            .map(|h| (h.i, rank_of[h.i as usize]))
-            .collect();
-        let touching = merged(&touched, &kept, |t| t.0);
-        let resolved_holders: Vec<Holder> = held.into_iter().flatten().collect();
-        view.holders = merged(&resolved_holders, &skipped_holders, |h| h.i);
+        view.holders = holders;
         (pass, touching)
     }
 
@@ -438,40 +361,15 @@ impl SkinCollision {
     }
 }
 
-/// Two lists each sorted by `key` (no key in both), merged in that order.
-fn merged<T: Copy>(a: &[T], b: &[T], key: impl Fn(&T) -> u32) -> Vec<T> {
-    if b.is_empty() {
-        return a.to_vec();
-    }
-    let mut out = Vec::with_capacity(a.len() + b.len());
-    let (mut i, mut j) = (0, 0);
-    while i < a.len() && j < b.len() {
-        if key(&a[i]) < key(&b[j]) {
-            out.push(a[i]);
-            i += 1;
-        } else {
-            out.push(b[j]);
-            j += 1;
-        }
-    }
-    out.extend_from_slice(&a[i..]);
-    out.extend_from_slice(&b[j..]);
-    out
-}
-
 /// Vertices per work item of the skip test (a whole number of blocks).
-const GROUP: usize = 1024;
+pub(super) const GROUP: usize = 1024;
 const _: () = assert!(GROUP.is_multiple_of(BLOCK));
 
-/// Groups per task of the skip test on rayon's pool: ~8k vertices (the test costs ~1 ns per
-/// vertex, less than waking another thread for a smaller task; session 7 measured a tube-10k
-/// frame's projections ~15 % faster with the skip test on one thread). A solve's team ignores
-/// it: its helpers are awake.
+/// Groups per task of a pass on rayon's pool (a projection called outside a solve): ~8k
+/// vertices (the skip test costs ~1 ns per vertex, less than waking another thread for a
+/// smaller task; session 7 measured a tube-10k frame's projections ~15 % faster with the skip
+/// test on one thread). A solve's team ignores it: its helpers are awake.
 const SKIP_TASK_GROUPS: usize = 8;
-
-/// Resolutions below which a pass resolves its failing vertices on one thread (~1 µs each:
-/// fewer are not worth a parallel loop, and they cluster in a few chunks anyway).
-const PARALLEL_RESOLUTIONS: usize = 32;
 
 /// Vertices per block of the skip test (one bit each in a `u64`); a whole number of blocks
 /// makes a chunk.

@@ -1289,9 +1289,9 @@ fn only_vertices_on_the_surface_are_reported_as_active_contacts() {
     assert_eq!(skin.diagnostics().contacts, 3);
 }
 
-/// A projection resolves its listed vertices grouped by the caller's chunks of state (a
-/// counting sort) and hands back the touching ones in the solver's order: over several chunks
-/// and a shuffled order, the active contacts and the unresolved vertices are exactly those the
+/// A projection resolves each failing vertex in the group of the solver's order that tests it,
+/// reading and writing its state at its caller's index, and hands back the touching ones in
+/// the solver's order: over several groups and a shuffled order, the active contacts and the unresolved vertices are exactly those the
 /// balls' closed-form distances give, sorted (solver's order for the contacts, caller's for
 /// the unresolved), on every pass.
 #[test]
@@ -1305,7 +1305,8 @@ fn projections_over_many_chunks_report_contacts_and_unresolved_vertices_in_order
     // Two balls whose surfaces are one thickness apart at x = 0: a vertex there cannot be a
     // thickness from both (unresolved); elsewhere vertices end on a surface or away from both.
     let centres = [Vec3::X * -(r + 0.5 * h), Vec3::X * (r + 0.5 * h)];
-    let n = 3 * CHUNK + 17;
+    // Several groups of the pass and several chunks of the caller's state.
+    let n = 3 * project::GROUP.max(CHUNK) + 17;
     let mut skin = SkinCollision::new(n, config).unwrap();
     for c in centres {
         skin.add_collider(
