@@ -124,6 +124,21 @@ impl Slot {
         self.clearance as f64 - (travel - self.travel_at) - p.distance(self.p_ref) as f64
     }
 
+    /// The terms of [`lower_bound`](Self::lower_bound) for a filter in f32: the reserve
+    /// `clearance − (travel − travel_at)` rounded down to f32 (at most the exact one), and the
+    /// reference point.
+    #[inline]
+    pub(crate) fn reserve_f32(&self, travel: f64) -> (f32, Vec3) {
+        let r = self.clearance as f64 - (travel - self.travel_at);
+        let down = r as f32;
+        let down = if down as f64 > r {
+            down.next_down()
+        } else {
+            down
+        };
+        (down, self.p_ref)
+    }
+
     #[inline]
     pub(crate) fn set(&mut self, clearance: f32, p: Vec3, travel: f64) {
         self.clearance = clearance;

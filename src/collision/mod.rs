@@ -5,6 +5,7 @@ pub mod bench_support;
 mod cache;
 mod collider;
 mod frame;
+mod plan;
 mod project;
 pub mod shapes;
 
@@ -25,6 +26,7 @@ use crate::mesh::TopologyError;
 use crate::solver::{ActiveContact, Projection};
 use cache::{Answer, Patch, Slot};
 use collider::NONE;
+use plan::{Batch, LANES, Motion};
 
 /// Vertices per parallel work item (fixed, so results never depend on the thread count).
 const CHUNK: usize = 256;
@@ -807,164 +809,44 @@ impl SkinCollision {
     /// pair whose motion stays within the count the largest reaching motion found so far asks
     /// for changes nothing, and is not tested.
     fn reaching_motion(&self, x: &[Vec3], touched: &[u32], step: f32) -> f32 {
-        struct Motion {
-            prev: Pose,
-            pose: Pose,
-            /// `prev.lerp(pose, k / PATH_STEPS)` for every `k`: the bisection only evaluates
-            /// the path at these times, the same for every vertex.
-            path: [Pose; PATH_STEPS + 1],
-            /// The slerp's angular velocity over the frame (world frame), rad.
-            omega: Vec3,
-            /// The pose did not change over the frame.
-            still: bool,
-            /// The path's speed at its ends, `|w′ − ω × wₖ|`, is `|(p₁ − p₀) + cₖ − ω × pₖ|`
-            /// with `cₖ = t₀ − t₁ + ω × tₖ`...
-            ends: [Vec3; 2],
-            /// ... and the relative pose carries `p₀` by `|(M − I) p₀ + b|` (`M = R₁ R₀ᵀ`,
-            /// `b = t₁ − M t₀`).
-            carry: (glam::Mat3, Vec3),
-            deform: f32,
-            global: f32,
-            travel: f64,
-        }
+        self.reaching_motion_with(x, touched, step, true)
+    }
+
+    /// [`reaching_motion`](Self::reaching_motion), its pairs filtered eight vertices at a time
+    /// when `wide` ([`plan`]: the same substep count either way).
+    fn reaching_motion_with(&self, x: &[Vec3], touched: &[u32], step: f32, wide: bool) -> f32 {
         let nc = self.colliders.len();
         if nc == 0 {
             return 0.0;
         }
-        let motions: Vec<Motion> = self
-            .colliders
-            .iter()
-            .map(|c| {
-                let (prev, pose) = (c.prev_pose(), c.pose());
-                // The slerp turns about the axis of `R₁ R₀⁻¹` by its angle along the shorter
-                // way (the quaternion with `w >= 0`). The angle from `atan2(|xyz|, w)`, not
-                // from `acos(w)`, which loses small turns to the rounding of `w` near 1.
-                let turn = pose.rotation * prev.rotation.inverse();
-                let mut delta = turn.normalize();
-                if delta.w < 0.0 {
-                    delta = -delta;
-                }
-                let xyz = delta.xyz();
-                let sin_half = xyz.length();
-                let omega = if sin_half > 0.0 {
-                    xyz * (2.0 * sin_half.atan2(delta.w) / sin_half)
-                } else {
-                    Vec3::ZERO
-                };
-                let deform = c.frame_deform_m();
-                Motion {
-                    prev,
-                    pose,
-                    path: std::array::from_fn(|k| prev.lerp(&pose, k as f32 / PATH_STEPS as f32)),
-                    omega,
-                    still: prev == pose,
-                    ends: [prev.translation, pose.translation]
-                        .map(|t| prev.translation - pose.translation + omega.cross(t)),
-                    carry: {
-                        let m = glam::Mat3::from_quat(turn);
-                        (
-                            m - glam::Mat3::IDENTITY,
-                            pose.translation - m * prev.translation,
-                        )
-                    },
-                    deform,
-                    global: deform + c.frame_pose_motion_m(),
-                    travel: c.travel_m(),
-                }
-            })
-            .collect();
+        let motions = self.plan_motions();
         let cfg = &self.config;
         let covered = |worst: f32| covered_motion(worst, step);
-        // The largest motion, above `worst`, of a pair of vertex `i` (now at `p1`) and a
-        // collider it can reach, when it asks for more substeps than `worst`; else `worst`;
-        // with `skip = covered(worst)`.
-        let vertex = |p1: Vec3, last: Vec3, h: f32, slots: &[Slot], (mut worst, mut skip)| {
+        let pair = |c, ends, slot: &Slot, ws| self.reach_pair(&motions, step, c, ends, slot, ws);
+        let vertex = |p1: Vec3, last: Vec3, h: f32, slots: &[Slot], mut ws: (f32, f32)| {
             let p0 = if last.is_finite() { last } else { p1 };
-            let v = p0.distance(p1);
-            let band = h * (1.0 + cfg.contact_band);
-            for ((col, m), slot) in self.colliders.iter().zip(&motions).zip(slots) {
-                // `motion` below is at most `m.global + v` (a still pair: 0), and `worst >= 0`.
-                if m.global + v <= skip {
-                    continue;
-                }
-                // The path's speed bound (see above), with room for the rounding of the
-                // products and of the slerp; exactly 0 for a still pair (a still bone under
-                // still skin), which then costs nothing below.
-                let raw = if m.still {
-                    v
-                } else {
-                    // (A vertex still over the frame, the usual case, turns once.)
-                    let turn0 = m.omega.cross(p0);
-                    let turn1 = if p0 == p1 { turn0 } else { m.omega.cross(p1) };
-                    let step = p1 - p0;
-                    (step + m.ends[0] - turn0)
-                        .length()
-                        .max((step + m.ends[1] - turn1).length())
-                };
-                let speed = if raw > 0.0 {
-                    raw * (1.0 + 1e-4) + 1e-6
-                } else {
-                    0.0
-                };
-                let motion = (speed + m.deform).min(m.global + v);
-                if motion <= skip {
-                    continue;
-                }
-                // Rounding of the transforms and queries.
-                let margin = band + m.deform + 1e-4 * (speed + band) + 1e-6;
-                // The cached distance bound (now, and at the previous pose: at most the
-                // frame's surface motion less) proves what the first test of `reaches` would:
-                // both ends at least `margin + speed / 2` away (with room for the rounding of
-                // the distances it computes).
-                // (A vertex with no last pass this frame has `p0 == p1`: one bound.)
-                let now = slot.lower_bound(p1, m.travel);
-                let before = if p0 == p1 {
-                    now
-                } else {
-                    slot.lower_bound(p0, m.travel)
-                };
-                // At the previous pose `p₀` was as far from the surface as `P₁ P₀⁻¹ p₀` is
-                // now, less the deformation: the bound now, less how far that relative pose
-                // carries `p₀` (at most the collider's whole motion `m.global`).
-                let moved = if m.still {
-                    m.deform
-                } else {
-                    let carried = (m.carry.0 * p0 + m.carry.1).length();
-                    (carried * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global)
-                };
-                let bound = now.min(before - moved as f64);
-                let needed = (margin + 0.5 * speed) as f64;
-                if bound - 1e-4 * (p1.abs().max_element() as f64 + needed) - 1e-6 >= needed {
-                    continue;
-                }
-                let distance = |t: f32| {
-                    let k = t * PATH_STEPS as f32;
-                    let pose = if t >= 1.0 {
-                        m.pose
-                    } else if k.fract() == 0.0 && k >= 0.0 {
-                        m.path[k as usize]
-                    } else {
-                        m.prev.lerp(&m.pose, t)
-                    };
-                    let local = pose.inverse_transform_point(p0.lerp(p1, t));
-                    // A distance of at least `margin + speed / 2` proves any piece out of
-                    // reach: a cheaper bound (the box, or a search stopped there) answers the
-                    // same as the exact distance.
-                    let cap = margin + 0.5 * speed;
-                    let d = aabb_distance(col.local_aabb(), local);
-                    if d >= cap {
-                        d
-                    } else {
-                        col.distance_local_capped(local, cap)
-                    }
-                };
-                if reaches(&distance, speed, margin) {
-                    worst = motion;
-                    skip = covered(worst);
-                }
+            let ends = (p0, p1, p0.distance(p1), h * (1.0 + cfg.contact_band));
+            for (c, slot) in slots.iter().enumerate() {
+                ws = pair(c, ends, slot, ws);
             }
-            (worst, skip)
+            ws
         };
+        // Eight vertices: the pairs the filter keeps, collider by collider, each through the
+        // exact tests (the result is a maximum: any order of pairs gives it).
+        let batch =
+            |xs: &[Vec3], lasts: &[Vec3], hs: &[f32], slots: &[Slot], mut ws: (f32, f32)| {
+                let b = Batch::new(xs, lasts, hs, cfg.contact_band);
+                for (c, m) in motions.iter().enumerate() {
+                    let mut alive = b.survivors(m, |l| &slots[l * nc + c], ws.1);
+                    while alive != 0 {
+                        let l = alive.trailing_zeros() as usize;
+                        alive &= alive - 1;
+                        let (p0, p1) = b.ends(l);
+                        ws = pair(c, (p0, p1, b.v[l], b.band[l]), &slots[l * nc + c], ws);
+                    }
+                }
+                ws
+            };
         // The result is a maximum, whatever order the pairs are visited in, and pairs that
         // move less than the largest reaching one found so far need no query. Vertices that
         // touched a collider last (their friction anchors) most likely reach it again: visiting
@@ -982,15 +864,136 @@ impl SkinCollision {
             .zip(self.slots.par_chunks(CHUNK * nc))
             .map(|(((xs, lasts), hs), slots)| {
                 let mut worst = touched;
-                for (((&p1, &last), &h), slots) in
-                    xs.iter().zip(lasts).zip(hs).zip(slots.chunks(nc))
-                {
-                    worst = vertex(p1, last, h, slots, worst);
+                let mut k = 0;
+                if wide {
+                    while k + LANES <= xs.len() {
+                        let r = k..k + LANES;
+                        let s = &slots[k * nc..(k + LANES) * nc];
+                        worst = batch(&xs[r.clone()], &lasts[r.clone()], &hs[r], s, worst);
+                        k += LANES;
+                    }
+                }
+                for k in k..xs.len() {
+                    let s = &slots[k * nc..(k + 1) * nc];
+                    worst = vertex(xs[k], lasts[k], hs[k], s, worst);
                 }
                 worst.0
             })
             .collect();
         per_chunk.into_iter().fold(0.0f32, f32::max)
+    }
+
+    /// The frame's motion of every collider, as the plan takes it.
+    fn plan_motions(&self) -> Vec<Motion> {
+        self.colliders
+            .iter()
+            .map(|c| {
+                let deform = c.frame_deform_m();
+                Motion::new(
+                    (c.prev_pose(), c.pose()),
+                    (deform, deform + c.frame_pose_motion_m(), c.travel_m()),
+                    *c.local_aabb(),
+                    PATH_STEPS,
+                )
+            })
+            .collect()
+    }
+
+    /// The exact tests of [`reaching_motion`](Self::reaching_motion) for one pair: the largest
+    /// motion, above `worst`, of the pair of a vertex (last at `p0`, now at `p1`,
+    /// `v = |p₁ − p₀|`, contact band `band`) and collider `c` (its slot `slot`, its frame's
+    /// motion `motions[c]`), when it can reach the collider and asks for more substeps than
+    /// `worst`; else `worst`; with `skip = covered(worst)` for substeps of `step`.
+    fn reach_pair(
+        &self,
+        motions: &[Motion],
+        step: f32,
+        c: usize,
+        (p0, p1, v, band): (Vec3, Vec3, f32, f32),
+        slot: &Slot,
+        (worst, skip): (f32, f32),
+    ) -> (f32, f32) {
+        let (col, m) = (&self.colliders[c], &motions[c]);
+        // `motion` below is at most `m.global + v` (a still pair: 0), and `worst >= 0`.
+        if m.global + v <= skip {
+            return (worst, skip);
+        }
+        // The path's speed bound (see above), with room for the rounding of the products
+        // and of the slerp; exactly 0 for a still pair (a still bone under still skin),
+        // which then costs nothing below.
+        let raw = if m.still {
+            v
+        } else {
+            // (A vertex still over the frame, the usual case, turns once.)
+            let turn0 = m.omega.cross(p0);
+            let turn1 = if p0 == p1 { turn0 } else { m.omega.cross(p1) };
+            let step = p1 - p0;
+            (step + m.ends[0] - turn0)
+                .length()
+                .max((step + m.ends[1] - turn1).length())
+        };
+        let speed = if raw > 0.0 {
+            raw * (1.0 + 1e-4) + 1e-6
+        } else {
+            0.0
+        };
+        let motion = (speed + m.deform).min(m.global + v);
+        if motion <= skip {
+            return (worst, skip);
+        }
+        // Rounding of the transforms and queries.
+        let margin = band + m.deform + 1e-4 * (speed + band) + 1e-6;
+        // The cached distance bound (now, and at the previous pose: at most the frame's
+        // surface motion less) proves what the first test of `reaches` would: both ends at
+        // least `margin + speed / 2` away (with room for the rounding of the distances it
+        // computes).
+        // (A vertex with no last pass this frame has `p0 == p1`: one bound.)
+        let now = slot.lower_bound(p1, m.travel);
+        let before = if p0 == p1 {
+            now
+        } else {
+            slot.lower_bound(p0, m.travel)
+        };
+        // At the previous pose `p₀` was as far from the surface as `P₁ P₀⁻¹ p₀` is now, less
+        // the deformation: the bound now, less how far that relative pose carries `p₀` (at
+        // most the collider's whole motion `m.global`).
+        let moved = if m.still {
+            m.deform
+        } else {
+            let carried = (m.carry.0 * p0 + m.carry.1).length();
+            (carried * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global)
+        };
+        let bound = now.min(before - moved as f64);
+        let needed = (margin + 0.5 * speed) as f64;
+        if bound - 1e-4 * (p1.abs().max_element() as f64 + needed) - 1e-6 >= needed {
+            return (worst, skip);
+        }
+        let distance = |t: f32| {
+            let k = t * PATH_STEPS as f32;
+            let pose = if t >= 1.0 {
+                m.pose
+            } else if k.fract() == 0.0 && k >= 0.0 {
+                m.path[k as usize]
+            } else {
+                m.prev.lerp(&m.pose, t)
+            };
+            let local = pose.inverse_transform_point(p0.lerp(p1, t));
+            // A distance of at least `margin + speed / 2` proves any piece out of reach: a
+            // cheaper bound (the box, or a search stopped there) answers the same as the
+            // exact distance.
+            let cap = margin + 0.5 * speed;
+            let d = aabb_distance(col.local_aabb(), local);
+            if d >= cap {
+                d
+            } else {
+                col.distance_local_capped(local, cap)
+            }
+        };
+        if reaches(&distance, speed, margin) {
+            (motion, covered_motion(motion, step))
+        } else {
+            (worst, skip)
+        }
     }
 
     /// Runs the next substep of the frame begun by [`begin_frame`](Self::begin_frame): colliders
