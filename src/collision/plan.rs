@@ -37,8 +37,13 @@ pub(super) struct Motion {
     /// ... and the relative pose carries `p₀` by `|(M − I) p₀ + b|` (`M = R₁ R₀ᵀ`,
     /// `b = t₁ − M t₀`).
     pub(super) carry: (Mat3, Vec3),
+    /// How far the collider's shape moved any of its points over the frame (a deforming
+    /// mesh's largest vertex displacement), m.
     pub(super) deform: f32,
+    /// Bound on how far any point of its surface moved over the frame (the deformation and the
+    /// pose's motion), m.
     pub(super) global: f32,
+    /// Its travel so far, the clock of the slots' distance bounds, m.
     pub(super) travel: f64,
     /// The path's end poses as rotation matrices of their inverses and translations, for the
     /// filter's box distances (`path[0]` and `pose`).
