@@ -918,9 +918,8 @@ impl SkinCollision {
         if m.global + v <= skip {
             return (worst, skip);
         }
-        // The path's speed bound (see above), with room for the rounding of the products
-        // and of the slerp; exactly 0 for a still pair (a still bone under still skin),
-        // which then costs nothing below.
+        // The path's speed bound (see above; `Motion::speed`): 0 for a still pair (a still
+        // bone under still skin), which then costs nothing below.
         let raw = if m.still {
             v
         } else {
@@ -932,17 +931,12 @@ impl SkinCollision {
                 .length()
                 .max((step + m.ends[1] - turn1).length())
         };
-        let speed = if raw > 0.0 {
-            raw * (1.0 + 1e-4) + 1e-6
-        } else {
-            0.0
-        };
+        let speed = Motion::speed(raw);
         let motion = (speed + m.deform).min(m.global + v);
         if motion <= skip {
             return (worst, skip);
         }
-        // Rounding of the transforms and queries.
-        let margin = band + m.deform + 1e-4 * (speed + band) + 1e-6;
+        let margin = m.margin(band, speed);
         // The cached distance bound (now, and at the previous pose: at most the frame's
         // surface motion less) proves what the first test of `reaches` would: both ends at
         // least `margin + speed / 2` away (with room for the rounding of the distances it
@@ -961,7 +955,7 @@ impl SkinCollision {
             m.deform
         } else {
             let carried = (m.carry.0 * p0 + m.carry.1).length();
-            (carried * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global)
+            m.moved(carried)
         };
         let bound = now.min(before - moved as f64);
         let needed = (margin + 0.5 * speed) as f64;

@@ -103,6 +103,34 @@ impl Motion {
     }
 }
 
+impl Motion {
+    /// The path's speed bound from its raw value (see `reaching_motion`), with room for the
+    /// rounding of the products and of the slerp; exactly 0 for a still pair. The exact tests
+    /// and the filter share it, operation for operation.
+    #[inline(always)]
+    pub(super) fn speed(raw: f32) -> f32 {
+        if raw > 0.0 {
+            raw * (1.0 + 1e-4) + 1e-6
+        } else {
+            0.0
+        }
+    }
+
+    /// How far a pair of the contact band `band` moving at `speed` may come in before its
+    /// path reaches: the band, the deformation and the rounding of the transforms and queries.
+    #[inline(always)]
+    pub(super) fn margin(&self, band: f32, speed: f32) -> f32 {
+        band + self.deform + 1e-4 * (speed + band) + 1e-6
+    }
+
+    /// How far the frame's relative pose carries a point it moves by `carried` (plus the
+    /// deformation, at most the collider's whole motion).
+    #[inline(always)]
+    pub(super) fn moved(&self, carried: f32) -> f32 {
+        (carried * (1.0 + 1e-4) + 1e-6 + self.deform).min(self.global)
+    }
+}
+
 /// Eight skin vertices' data, lane `l` for vertex `l` of the batch.
 pub(super) struct Batch {
     /// Where each vertex was at the last pass (its warm start if none), and its warm start.
@@ -180,9 +208,9 @@ impl Batch {
 
     #[inline(always)]
     fn survivors_in<'a>(&self, m: &Motion, slot: impl Fn(usize) -> &'a Slot, skip: f32) -> u32 {
-        // A still collider under a vertex that moves less than `skip`, the usual case, in one
-        // test per lane (the exact test's own arithmetic).
-        // Each test flags the lanes it settles (a NaN settles none).
+        // Each test flags the lanes it settles (a NaN settles none). First a still collider
+        // under a vertex that moves less than `skip`, the usual case, in one test per lane
+        // (the exact test's own arithmetic).
         let mut settled = [0u32; LANES];
         for (s, &v) in settled.iter_mut().zip(&self.v) {
             *s = u32::from(m.global + v <= skip);
@@ -214,11 +242,7 @@ impl Batch {
         let mut speed = [0.0f32; LANES];
         let mut motion = [0.0f32; LANES];
         for l in 0..LANES {
-            speed[l] = if raw[l] > 0.0 {
-                raw[l] * (1.0 + 1e-4) + 1e-6
-            } else {
-                0.0
-            };
+            speed[l] = Motion::speed(raw[l]);
             motion[l] = (speed[l] + m.deform).min(m.global + self.v[l]);
         }
         // The substeps asked for so far cover the pair's motion (with room for rounding).
@@ -258,11 +282,11 @@ impl Batch {
                 let cy = c.x_axis.y * x + c.y_axis.y * y + c.z_axis.y * z + b.y;
                 let cz = c.x_axis.z * x + c.y_axis.z * y + c.z_axis.z * z + b.z;
                 let carried = (cx * cx + cy * cy + cz * cz).sqrt();
-                (carried * (1.0 + 1e-4) + 1e-6 + m.deform).min(m.global)
+                m.moved(carried)
             };
             let before = reserve[l] - d0 - moved;
             let band = self.band[l];
-            let margin = band + m.deform + 1e-4 * (speed[l] + band) + 1e-6;
+            let margin = m.margin(band, speed[l]);
             let needed = margin + 0.5 * speed[l];
             cap[l] = needed;
             let scale = p1x[l].abs().max(p1y[l].abs()).max(p1z[l].abs());
