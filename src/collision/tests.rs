@@ -1291,9 +1291,9 @@ fn only_vertices_on_the_surface_are_reported_as_active_contacts() {
 
 /// A projection resolves each failing vertex in the group of the solver's order that tests it,
 /// reading and writing its state at its caller's index, and hands back the touching ones in
-/// the solver's order: over several groups and a shuffled order, the active contacts and the unresolved vertices are exactly those the
-/// balls' closed-form distances give, sorted (solver's order for the contacts, caller's for
-/// the unresolved), on every pass.
+/// the solver's order: over several groups and a shuffled order, the active contacts and the
+/// unresolved vertices are exactly those the balls' closed-form distances give, sorted
+/// (solver's order for the contacts, caller's for the unresolved), on every pass.
 #[test]
 fn projections_over_many_chunks_report_contacts_and_unresolved_vertices_in_order() {
     let (r, h) = (0.2f32, 0.01f32);
