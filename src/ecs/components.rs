@@ -174,8 +174,8 @@ pub struct EdgeStiffness {
     pub k_n_per_m: Vec<f32>,
 }
 
-/// The solver-ready spring system of a skin (vertices in Morton order, CSR springs), rebuilt by
-/// [`rebuild_springs`](super::rebuild_springs) whenever [`EdgeStiffness`] changes.
+/// The solver-ready spring system of a skin (vertices in bandwidth order, sliced springs),
+/// rebuilt by [`rebuild_springs`](super::rebuild_springs) whenever [`EdgeStiffness`] changes.
 #[derive(Component, Debug, Clone, Default)]
 pub struct SkinSprings {
     pub(crate) system: Option<SpringSystem>,

@@ -8,7 +8,7 @@ mod sell;
 mod simd;
 pub(crate) mod team;
 
-pub use reorder::morton_order;
+pub use reorder::{bandwidth_order, morton_order};
 
 /// The SIMD path the relaxation kernels take in this process: `"avx2"` where the CPU has
 /// AVX2 and FMA (x86-64, detected at run time), else `"scalar"` (portable code); `"avx512"`
@@ -333,9 +333,9 @@ pub enum SolverError {
 /// A spring mesh ready to relax: springs in slices of eight vertices (for the SIMD kernels), in a
 /// locality-friendly internal vertex order.
 ///
-/// Vertices are renumbered along a Morton curve of their rest positions when the system is
-/// built (a shuffled input runs as fast as a well-ordered one); every public method takes and
-/// returns data in the caller's order.
+/// Vertices are renumbered when the system is built so that every spring's two ends are close
+/// in memory ([`bandwidth_order`]: a shuffled input runs as fast as a well-ordered one, and gives
+/// the same answers); every public method takes and returns data in the caller's order.
 ///
 /// ```
 /// use dermis::prelude::*;
@@ -394,7 +394,23 @@ impl SpringSystem {
                 return Err(SolverError::BadSpring { edge: e, k, rest });
             }
         }
-        let order = morton_order(positions);
+        Self::in_order(
+            bandwidth_order(positions, edges),
+            edges,
+            stiffness,
+            rest_lengths,
+        )
+    }
+
+    /// [`new`](Self::new) after its checks, with the internal order given (`order[i]`: the
+    /// caller's index of internal vertex `i`, a permutation).
+    fn in_order(
+        order: Vec<u32>,
+        edges: &[[u32; 2]],
+        stiffness: &[f32],
+        rest_lengths: &[f32],
+    ) -> Result<Self, SolverError> {
+        let n = order.len();
         let mut rank = vec![0u32; n];
         for (i, &o) in order.iter().enumerate() {
             rank[o as usize] = i as u32;

@@ -10,7 +10,7 @@
 //! and contribute nothing.
 //!
 //! The other end of a spring is stored as a 16-bit offset from the slice's first vertex
-//! (vertices are in Morton order, so almost every neighbour is near), times three when all of
+//! (vertices are in bandwidth order, so almost every neighbour is near), times three when all of
 //! the slice's offsets allow it ("tripled": the float offset of the neighbour's position, which
 //! the kernels use as an address without a multiplication); a slice with a neighbour
 //! farther than that ("wide", flagged in [`Sell::upper`]) keeps full 32-bit indices in
