@@ -515,7 +515,8 @@ impl SpringSystem {
     /// share a slot with such springs), with a 16-bit reference to them from the other end;
     /// three offsets per slice; 32-bit indices for the few slices with a neighbour beyond a
     /// 16-bit offset or a reference beyond 16 bits; and each vertex's summed stiffness (4 bytes,
-    /// the preconditioner's spring part). About 51-54 bytes on a triangle mesh.
+    /// the preconditioner's spring part). About 48 bytes on a triangle mesh (the bench tubes:
+    /// 47.5-48.0).
     pub fn bytes_per_vertex(&self) -> f64 {
         (self.sell.bytes() + self.spring_diagonal.len() * size_of::<f32>()) as f64
             / self.vertex_count().max(1) as f64
@@ -523,8 +524,8 @@ impl SpringSystem {
 
     /// Bytes per vertex of the vectors a relaxation iterates on besides the springs: positions,
     /// direction and force (12 B each) and the inverse diagonal with the pin flag (4 B), 40 B;
-    /// with the springs ([`bytes_per_vertex`](Self::bytes_per_vertex)), about 91-94 B of
-    /// solver state per vertex on a triangle mesh.
+    /// with the springs ([`bytes_per_vertex`](Self::bytes_per_vertex)), about 88 B of solver
+    /// state per vertex on a triangle mesh.
     pub const VECTOR_BYTES_PER_VERTEX: usize = 3 * 12 + 4;
 
     /// The chunks whose forces read one of the `moved` vertices (internal indices), into

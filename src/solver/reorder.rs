@@ -11,11 +11,12 @@ use sprs::linalg::ordering::{cuthill_mckee_custom, order::Reversed, start::Strat
 /// It is the reverse Cuthill-McKee order of the spring graph ([`sprs`]'s, from a
 /// pseudo-peripheral vertex of each connected part, each vertex's new neighbours by increasing
 /// degree; the time is linear in the springs, whatever the number of parts): the vertices
-/// in breadth-first levels, so a spring joins two vertices at most about two levels apart. On a
-/// mesh of `n` vertices that is about `√n` positions (a skin tube: two rings), which keeps the
-/// neighbours a pass over the vertices reads within a window that fits the core's cache, where
-/// a [Morton curve](morton_order) of the positions leaves some springs spanning half the mesh
-/// (tube-100k: 1.2-1.35x the relaxation's speed, relax-1m 1.6-1.7x; session 21).
+/// in breadth-first levels, so a spring joins two vertices of the same or adjacent levels: at
+/// most two levels' width apart, about `√n` positions on a roughly square surface of `n`
+/// vertices, a ring and a half on a skin tube. That keeps the neighbours a pass over the
+/// vertices reads within a window that fits the core's cache, where a
+/// [Morton curve](morton_order) of the positions leaves some springs spanning a sixth of the
+/// mesh (the relaxation 1.15-1.31x as fast at 100k vertices, 1.35-1.62x at 1M; session 21).
 ///
 /// The graph is labelled along the Morton curve first, and the algorithm breaks its ties (the
 /// starting vertex of each connected part, neighbours of equal degree) by that label: the result
