@@ -207,6 +207,11 @@ pub struct WorkloadReport {
     /// The floor time of those iterations (bandwidth- or compute-bound, from the calibration)
     /// over the measured time: 1 would be at the machine's limit.
     pub relax_fraction_of_floor: f64,
+    /// The part of that relaxation's time that is not its iterations, ms: a solve's set-up
+    /// (input checks, the copies to the internal order, the preconditioner, the first force
+    /// gather) and its copy back, timed as the best of the same relaxations stopped after 0
+    /// iterations.
+    pub relax_setup_ms: f64,
     /// Contact time per skin vertex per frame, µs: frame plan, substep passes and the
     /// projections inside the relaxations, averaged over the timed frames (`null` without
     /// collision).
@@ -276,6 +281,7 @@ pub struct WorkloadReport {
 struct RelaxFigures {
     vertex_iterations_per_s: f64,
     fraction_of_floor: f64,
+    setup_ms: f64,
     bytes_per_vertex: f64,
     thread_scaling: f64,
     speedup_vs_previous: f64,
@@ -291,12 +297,24 @@ fn thirty(
     anchors: &[VertexAnchor],
     runs: usize,
 ) -> (f64, RelaxReport) {
+    fixed(system, rest, anchors, runs, 30)
+}
+
+/// Best time of `runs` relaxations from the rest shape stopped after `iterations`, s, and the
+/// report.
+fn fixed(
+    system: &SpringSystem,
+    rest: &[Vec3],
+    anchors: &[VertexAnchor],
+    runs: usize,
+    iterations: u32,
+) -> (f64, RelaxReport) {
     let loads = Loads {
         anchors: Some(anchors),
         ..Default::default()
     };
-    let fixed = RelaxConfig {
-        max_iterations: 30,
+    let config = RelaxConfig {
+        max_iterations: iterations,
         tolerance: 0.0,
         stagnation_window: 0,
         ..RelaxConfig::DEFAULT
@@ -305,7 +323,7 @@ fn thirty(
         .map(|_| {
             let mut x = rest.to_vec();
             let t = Instant::now();
-            let r = system.relax(&mut x, &loads, &fixed).expect("finite");
+            let r = system.relax(&mut x, &loads, &config).expect("finite");
             (t.elapsed().as_secs_f64(), r)
         })
         .min_by(|a, b| a.0.total_cmp(&b.0))
@@ -321,6 +339,7 @@ fn relax_figures(
     let n = work.mesh.positions().len();
     let rest = work.mesh.positions();
     let (t_all, report) = thirty(&work.system, rest, anchors, runs);
+    let (t_setup, _) = fixed(&work.system, rest, anchors, runs, 0);
     let one = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
@@ -351,6 +370,7 @@ fn relax_figures(
     RelaxFigures {
         vertex_iterations_per_s: n as f64 / per_iteration,
         fraction_of_floor: floor / per_iteration,
+        setup_ms: t_setup * 1e3,
         bytes_per_vertex: work.system.bytes_per_vertex() + vectors,
         thread_scaling: t_one / t_all,
         speedup_vs_previous: t_previous / t_one,
@@ -499,6 +519,7 @@ pub fn run_arm_workload(
         collision_passes_per_frame_mean: Some(per_frame(passes)),
         relax_vertex_iterations_per_s: relax.vertex_iterations_per_s,
         relax_fraction_of_floor: relax.fraction_of_floor,
+        relax_setup_ms: relax.setup_ms,
         collision_us_per_vertex: Some(per_vertex(plan_s + passes_s + projections_s)),
         collision_plan_us_per_vertex: Some(per_vertex(plan_s)),
         collision_passes_us_per_vertex: Some(per_vertex(passes_s)),
@@ -571,6 +592,7 @@ pub fn run_workload(
         collision_passes_per_frame_mean: None,
         relax_vertex_iterations_per_s: relax.vertex_iterations_per_s,
         relax_fraction_of_floor: relax.fraction_of_floor,
+        relax_setup_ms: relax.setup_ms,
         collision_us_per_vertex: None,
         collision_plan_us_per_vertex: None,
         collision_passes_us_per_vertex: None,
@@ -863,6 +885,7 @@ mod tests {
             "iterations_per_frame_mean",
             "relax_vertex_iterations_per_s",
             "relax_fraction_of_floor",
+            "relax_setup_ms",
             "bytes_per_vertex",
             "thread_scaling_2_over_1",
             "relax_speedup_vs_previous",

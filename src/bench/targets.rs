@@ -170,6 +170,7 @@ mod tests {
             collision_passes_per_frame_mean: arm.then_some(73.0),
             relax_vertex_iterations_per_s: 150e6,
             relax_fraction_of_floor: 0.5,
+            relax_setup_ms: 0.2,
             collision_us_per_vertex: arm.then_some(0.6),
             collision_plan_us_per_vertex: arm.then_some(0.05),
             collision_passes_us_per_vertex: arm.then_some(0.15),

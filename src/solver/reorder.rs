@@ -421,6 +421,8 @@ mod tests {
         let n = 3 * triangles + 2;
         let (p, mut edges) = separate_triangles(triangles);
         edges.extend([[0, triangles], [5, 5], [7, n + 3]]);
+        assert!(bandwidth_order(&[], &[]).is_empty());
+        assert_eq!(bandwidth_order(&[Vec3::ZERO], &[[0, 0]]), [0]);
         let order = bandwidth_order(&p, &edges);
         let rank = ranks(&order);
         assert!(rank.iter().all(|&r| r < n as usize));
