@@ -49,8 +49,10 @@ pub fn compute_edge_stiffness(
 }
 
 /// Rebuilds the cached [`SkinSprings`] of the skins whose [`EdgeStiffness`] or
-/// [`RestGeometry`] changed (and of newly spawned skins). A failure keeps the previous springs
-/// and is recorded in [`RelaxDiagnostics::springs_error`].
+/// [`RestGeometry`] changed (and of newly spawned skins). When only the stiffness changed, the
+/// system keeps its vertex order ([`SpringSystem::with_stiffness`]: the same result, without
+/// ordering the mesh again). A failure keeps the previous springs and is recorded in
+/// [`RelaxDiagnostics::springs_error`].
 #[expect(
     clippy::type_complexity,
     reason = "the query is spelled out so the reader sees what the system touches"
@@ -58,7 +60,7 @@ pub fn compute_edge_stiffness(
 pub fn rebuild_springs(
     mut skins: Query<
         (
-            &RestGeometry,
+            Ref<RestGeometry>,
             &EdgeStiffness,
             &mut SkinSprings,
             &mut RelaxDiagnostics,
@@ -72,12 +74,16 @@ pub fn rebuild_springs(
 ) {
     for (rest, stiffness, mut springs, mut diagnostics) in &mut skins {
         let k = &stiffness.k_n_per_m;
-        match SpringSystem::new(
-            rest.positions(),
-            rest.mesh().topology().edges(),
-            k,
-            rest.edge_lengths_m(),
-        ) {
+        let edges = rest.mesh().topology().edges();
+        let built = match &springs.system {
+            Some(system)
+                if !rest.is_changed() && system.vertex_count() == rest.positions().len() =>
+            {
+                system.with_stiffness(edges, k, rest.edge_lengths_m())
+            }
+            _ => SpringSystem::new(rest.positions(), edges, k, rest.edge_lengths_m()),
+        };
+        match built {
             Ok(system) => {
                 springs.system = Some(system);
                 springs.spring_scale_sq = k.iter().map(|&k| f64::from(k).powi(2)).sum();

@@ -376,30 +376,53 @@ impl SpringSystem {
         stiffness: &[f32],
         rest_lengths: &[f32],
     ) -> Result<Self, SolverError> {
-        let n = positions.len();
-        check_len("stiffness", stiffness.len(), edges.len())?;
-        check_len("rest lengths", rest_lengths.len(), edges.len())?;
         check_finite("position", positions)?;
-        for (e, &[a, b]) in edges.iter().enumerate() {
-            if a as usize >= n || b as usize >= n || a == b {
-                return Err(SolverError::BadEdge {
-                    edge: e,
-                    a,
-                    b,
-                    vertex_count: n,
-                });
-            }
-            let (k, rest) = (stiffness[e], rest_lengths[e]);
-            if !(k.is_finite() && k >= 0.0 && rest.is_finite() && rest >= 0.0) {
-                return Err(SolverError::BadSpring { edge: e, k, rest });
-            }
-        }
+        check_springs(positions.len(), edges, stiffness, rest_lengths)?;
         Self::in_order(
             bandwidth_order(positions, edges),
             edges,
             stiffness,
             rest_lengths,
         )
+    }
+
+    /// The system [`new`](Self::new) builds from the same positions and `edges` as this one
+    /// with other `stiffness` and `rest_lengths`, without computing the vertex order again
+    /// (the order depends only on the positions and edges): for a skin whose stiffness
+    /// changes while its rest mesh does not. The result is the same as `new`'s, bit for bit.
+    ///
+    /// Other edges on the same vertices are accepted too; they keep this system's order, which
+    /// then may keep their ends less close in memory than `new` would.
+    ///
+    /// ```
+    /// use dermis::prelude::*;
+    /// use dermis::solver::Loads;
+    /// use glam::Vec3;
+    /// // A chain of two springs pinned at one end and pulled at the other.
+    /// let rest = [Vec3::ZERO, Vec3::X, Vec3::new(2.0, 0.0, 0.0)];
+    /// let edges = [[0, 1], [1, 2]];
+    /// let soft = SpringSystem::new(&rest, &edges, &[10.0, 10.0], &[1.0, 1.0]).unwrap();
+    /// let stiff = soft.with_stiffness(&edges, &[50.0, 80.0], &[1.0, 1.0]).unwrap();
+    /// let forces = [Vec3::ZERO, Vec3::ZERO, Vec3::new(4.0, 0.0, 0.0)];
+    /// let pinned = [true, false, false];
+    /// let loads = Loads { forces: Some(&forces), pinned: Some(&pinned), ..Default::default() };
+    /// let mut x = rest.to_vec();
+    /// stiff.relax(&mut x, &loads, &RelaxConfig::default()).unwrap();
+    /// assert!((x[2].x - (2.0 + 4.0 / 50.0 + 4.0 / 80.0)).abs() < 1e-4);
+    /// // The same bits as a system built afresh.
+    /// let fresh = SpringSystem::new(&rest, &edges, &[50.0, 80.0], &[1.0, 1.0]).unwrap();
+    /// let mut y = rest.to_vec();
+    /// fresh.relax(&mut y, &loads, &RelaxConfig::default()).unwrap();
+    /// assert_eq!(x, y);
+    /// ```
+    pub fn with_stiffness(
+        &self,
+        edges: &[[u32; 2]],
+        stiffness: &[f32],
+        rest_lengths: &[f32],
+    ) -> Result<Self, SolverError> {
+        check_springs(self.vertex_count(), edges, stiffness, rest_lengths)?;
+        Self::in_order(self.order.clone(), edges, stiffness, rest_lengths)
     }
 
     /// [`new`](Self::new) after its checks, with the internal order given (`order[i]`: the
@@ -910,6 +933,33 @@ fn check_len(what: &'static str, given: usize, expected: usize) -> Result<(), So
             expected,
         })
     }
+}
+
+/// Every edge joins two different vertices below `n`, and has a finite non-negative stiffness
+/// and rest length.
+fn check_springs(
+    n: usize,
+    edges: &[[u32; 2]],
+    stiffness: &[f32],
+    rest_lengths: &[f32],
+) -> Result<(), SolverError> {
+    check_len("stiffness", stiffness.len(), edges.len())?;
+    check_len("rest lengths", rest_lengths.len(), edges.len())?;
+    for (e, &[a, b]) in edges.iter().enumerate() {
+        if a as usize >= n || b as usize >= n || a == b {
+            return Err(SolverError::BadEdge {
+                edge: e,
+                a,
+                b,
+                vertex_count: n,
+            });
+        }
+        let (k, rest) = (stiffness[e], rest_lengths[e]);
+        if !(k.is_finite() && k >= 0.0 && rest.is_finite() && rest >= 0.0) {
+            return Err(SolverError::BadSpring { edge: e, k, rest });
+        }
+    }
+    Ok(())
 }
 
 fn check_finite(what: &'static str, v: &[Vec3]) -> Result<(), SolverError> {

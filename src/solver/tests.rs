@@ -308,6 +308,54 @@ fn result_does_not_depend_on_input_vertex_order() {
 }
 
 #[test]
+fn with_stiffness_gives_what_new_gives() {
+    // A sheet pinned along one side and sagging under a load, relaxed with per-edge stiffness
+    // that a system built with uniform stiffness is given afterwards.
+    let mesh = sheet(14);
+    let uniform = system(&mesh);
+    let edges = mesh.topology().edges();
+    let rest: Vec<f32> = edges
+        .iter()
+        .map(|&[a, b]| mesh.positions()[a as usize].distance(mesh.positions()[b as usize]))
+        .collect();
+    let varied: Vec<f32> = (0..edges.len())
+        .map(|e| 300.0 + 50.0 * (e % 11) as f32)
+        .collect();
+    let run = |s: &SpringSystem| {
+        let mut x = mesh.positions().to_vec();
+        let pinned: Vec<bool> = mesh.positions().iter().map(|p| p.y < 1e-3).collect();
+        let forces = vec![Vec3::new(0.0, 0.0, -0.02); x.len()];
+        let loads = Loads {
+            forces: Some(&forces),
+            pinned: Some(&pinned),
+            ..Default::default()
+        };
+        s.relax(&mut x, &loads, &RelaxConfig::default()).unwrap();
+        x
+    };
+    let restiffened = run(&uniform.with_stiffness(edges, &varied, &rest).unwrap());
+    let fresh = run(&SpringSystem::new(mesh.positions(), edges, &varied, &rest).unwrap());
+    assert_eq!(restiffened, fresh);
+    // The new stiffness is the one relaxed with.
+    assert_ne!(run(&uniform), fresh);
+    // Its inputs are checked as `new` checks them.
+    assert!(matches!(
+        uniform.with_stiffness(edges, &varied[1..], &rest),
+        Err(SolverError::Length { .. })
+    ));
+    let mut bad = varied.clone();
+    bad[7] = -1.0;
+    assert!(matches!(
+        uniform.with_stiffness(edges, &bad, &rest),
+        Err(SolverError::BadSpring { edge: 7, .. })
+    ));
+    assert!(matches!(
+        uniform.with_stiffness(&[[0, 196]], &[1.0], &[1.0]),
+        Err(SolverError::BadEdge { edge: 0, .. })
+    ));
+}
+
+#[test]
 fn bad_inputs_are_errors() {
     let rest = vec![Vec3::ZERO, Vec3::X];
     assert!(matches!(
