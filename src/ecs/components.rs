@@ -183,6 +183,9 @@ pub struct SkinSprings {
     pub(crate) spring_scale_sq: f64,
     /// Summed stiffness of the springs at each vertex, N/m.
     pub(crate) vertex_k: Vec<f64>,
+    /// Whether `system`'s vertex order is the one the current [`RestGeometry`] gives, so a
+    /// stiffness change may keep it.
+    pub(crate) order_is_current: bool,
 }
 
 impl SkinSprings {

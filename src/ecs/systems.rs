@@ -75,17 +75,18 @@ pub fn rebuild_springs(
     for (rest, stiffness, mut springs, mut diagnostics) in &mut skins {
         let k = &stiffness.k_n_per_m;
         let edges = rest.mesh().topology().edges();
+        // The system's order is the current rest geometry's unless that changed since (now, or
+        // in a frame whose rebuild failed and kept the older system).
+        let current = springs.order_is_current && !rest.is_changed();
         let built = match &springs.system {
-            Some(system)
-                if !rest.is_changed() && system.vertex_count() == rest.positions().len() =>
-            {
-                system.with_stiffness(edges, k, rest.edge_lengths_m())
-            }
+            Some(system) if current => system.with_stiffness(edges, k, rest.edge_lengths_m()),
             _ => SpringSystem::new(rest.positions(), edges, k, rest.edge_lengths_m()),
         };
+        springs.order_is_current = current;
         match built {
             Ok(system) => {
                 springs.system = Some(system);
+                springs.order_is_current = true;
                 springs.spring_scale_sq = k.iter().map(|&k| f64::from(k).powi(2)).sum();
                 let mut vertex_k = vec![0.0f64; rest.positions().len()];
                 for (&[a, b], &k) in rest.mesh().topology().edges().iter().zip(k) {
