@@ -438,39 +438,30 @@ impl SpringSystem {
         for (i, &o) in order.iter().enumerate() {
             rank[o as usize] = i as u32;
         }
-        let mut degree = vec![0u32; n + 1];
-        for &[a, b] in edges {
-            degree[rank[a as usize] as usize + 1] += 1;
-            degree[rank[b as usize] as usize + 1] += 1;
-        }
+        let pairs = edges
+            .iter()
+            .map(|&[a, b]| (rank[a as usize], rank[b as usize]));
+        let blank = Spring {
+            other: 0,
+            k: 0.0,
+            rest: 0.0,
+        };
+        let (offsets, mut springs) = reorder::symmetric_rows(n, pairs, blank, |other, e| Spring {
+            other,
+            k: stiffness[e],
+            rest: rest_lengths[e],
+        });
         for i in 0..n {
-            degree[i + 1] += degree[i];
+            springs[offsets[i]..offsets[i + 1]].sort_by_key(|s| s.other);
         }
-        let offsets = degree;
-        let mut fill = offsets.clone();
-        let mut springs = vec![
-            Spring {
-                other: 0,
-                k: 0.0,
-                rest: 0.0
-            };
-            edges.len() * 2
-        ];
-        for (e, &[a, b]) in edges.iter().enumerate() {
-            let (ra, rb) = (rank[a as usize], rank[b as usize]);
-            for (from, to) in [(ra, rb), (rb, ra)] {
-                let slot = &mut fill[from as usize];
-                springs[*slot as usize] = Spring {
-                    other: to,
-                    k: stiffness[e],
-                    rest: rest_lengths[e],
-                };
-                *slot += 1;
-            }
-        }
-        for i in 0..n {
-            springs[offsets[i] as usize..offsets[i + 1] as usize].sort_by_key(|s| s.other);
-        }
+        let too_many = || SolverError::TooManySprings {
+            entries: springs.len(),
+            limit: sell::MAX_ENTRIES,
+        };
+        let offsets = offsets
+            .iter()
+            .map(|&o| u32::try_from(o).map_err(|_| too_many()))
+            .collect::<Result<Vec<u32>, _>>()?;
         let sell =
             Sell::from_csr(&offsets, &springs).map_err(|entries| SolverError::TooManySprings {
                 entries,

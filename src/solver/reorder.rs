@@ -40,6 +40,36 @@ pub fn bandwidth_order(positions: &[Vec3], edges: &[[u32; 2]]) -> Vec<u32> {
     })
 }
 
+/// The rows of the symmetric graph of `pairs` (both ends below `n`) in compressed form: the
+/// `k`-th pair `(a, b)` puts `entry(b, k)` in row `a` and `entry(a, k)` in row `b`, each row
+/// in the pairs' order. Returns the `n + 1` row offsets and the entries (`blank` only holds
+/// their places while they are filled).
+pub(super) fn symmetric_rows<E: Copy>(
+    n: usize,
+    pairs: impl Iterator<Item = (u32, u32)> + Clone,
+    blank: E,
+    mut entry: impl FnMut(u32, usize) -> E,
+) -> (Vec<usize>, Vec<E>) {
+    let mut offsets = vec![0usize; n + 1];
+    for (a, b) in pairs.clone() {
+        offsets[a as usize + 1] += 1;
+        offsets[b as usize + 1] += 1;
+    }
+    for i in 0..n {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut fill = offsets[..n].to_vec();
+    let mut entries = vec![blank; offsets[n]];
+    for (k, (a, b)) in pairs.enumerate() {
+        for (from, to) in [(a, b), (b, a)] {
+            let slot = &mut fill[from as usize];
+            entries[*slot] = entry(to, k);
+            *slot += 1;
+        }
+    }
+    (offsets, entries)
+}
+
 /// The order `order_graph` gives the spring graph labelled along the Morton curve (from
 /// label `i`: the Morton order's `i`-th vertex), in the input's numbering.
 fn by_graph(
@@ -54,28 +84,11 @@ fn by_graph(
         label[o as usize] = i as u32;
     }
     // The symmetric adjacency in compressed rows, by Morton label, each row sorted once.
-    let valid = || {
-        edges
-            .iter()
-            .filter(|&&[a, b]| a != b && (a as usize) < n && (b as usize) < n)
-            .map(|&[a, b]| (label[a as usize], label[b as usize]))
-    };
-    let mut indptr = vec![0usize; n + 1];
-    for (a, b) in valid() {
-        indptr[a as usize + 1] += 1;
-        indptr[b as usize + 1] += 1;
-    }
-    for i in 0..n {
-        indptr[i + 1] += indptr[i];
-    }
-    let mut fill = indptr.clone();
-    let mut indices = vec![0u32; indptr[n]];
-    for (a, b) in valid() {
-        for (from, to) in [(a, b), (b, a)] {
-            indices[fill[from as usize]] = to;
-            fill[from as usize] += 1;
-        }
-    }
+    let valid = edges
+        .iter()
+        .filter(|&&[a, b]| a != b && (a as usize) < n && (b as usize) < n)
+        .map(|&[a, b]| (label[a as usize], label[b as usize]));
+    let (mut indptr, mut indices) = symmetric_rows(n, valid, 0u32, |to, _| to);
     // Sort each row and drop repeated edges, compacting in place.
     let mut kept = 0;
     for i in 0..n {
@@ -257,6 +270,21 @@ fn spread(v: u64) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn symmetric_rows_list_each_pair_in_both_rows_in_pair_order() {
+        // Pairs 0: (2, 0), 1: (0, 1), 2: (2, 0) again, 3: (3, 2); vertex 4 has none. Each
+        // entry is (other end, pair).
+        let pairs = [(2, 0), (0, 1), (2, 0), (3, 2)];
+        let (offsets, entries) = symmetric_rows(5, pairs.iter().copied(), (9, 9), |to, k| (to, k));
+        assert_eq!(offsets, [0, 3, 4, 7, 8, 8]);
+        let rows: Vec<&[(u32, usize)]> = offsets.windows(2).map(|w| &entries[w[0]..w[1]]).collect();
+        assert_eq!(rows[0], [(2, 0), (1, 1), (2, 2)]);
+        assert_eq!(rows[1], [(0, 1)]);
+        assert_eq!(rows[2], [(0, 0), (0, 2), (3, 3)]);
+        assert_eq!(rows[3], [(2, 3)]);
+        assert!(rows[4].is_empty());
+    }
 
     #[test]
     fn is_a_permutation_and_groups_neighbours() {
