@@ -10,12 +10,13 @@ pub(crate) mod team;
 
 pub use reorder::{bandwidth_order, morton_order};
 
-/// The SIMD path the relaxation kernels take in this process: `"avx2"` where the CPU has
-/// AVX2 and FMA (x86-64, detected at run time), else `"scalar"` (portable code); `"avx512"`
-/// only when the environment variable `DERMIS_SIMD=avx512` asks for it and the CPU has
-/// AVX-512F/VL. `DERMIS_SIMD=scalar` or `avx2` caps it. Every path gives the same bits (the
-/// portable code takes the kernels' fused multiply-adds from `mul_add`, which is slow on a CPU
-/// without FMA); this is for reports (`dermis bench` prints it) and for comparing paths.
+/// The SIMD path the relaxation kernels take in this process: on x86-64 (detected at run
+/// time) `"avx512"` on an AMD CPU with AVX-512F/VL (Zen 4 on, where it is the fastest),
+/// `"avx2"` on any other CPU with AVX2 and FMA, else `"scalar"` (portable code). The
+/// environment variable `DERMIS_SIMD=scalar|avx2|avx512` picks another path, never one the CPU
+/// lacks (it falls back to the best below it). Every path gives the same bits (the portable
+/// code takes the kernels' fused multiply-adds from `mul_add`, which is slow on a CPU without
+/// FMA); this is for reports (`dermis bench` prints it) and for comparing paths.
 ///
 /// ```
 /// assert!(["scalar", "avx2", "avx512"].contains(&dermis::solver::kernel_path()));
