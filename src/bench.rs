@@ -37,6 +37,9 @@ pub struct Machine {
     pub spring_ns: f64,
     /// The SIMD path of the relaxation kernels ([`crate::solver::kernel_path`]).
     pub kernels: &'static str,
+    /// The CPU, from CPUID: brand, vendor, family and model (`unknown` off x86-64). Which
+    /// kernel path is fastest, and every figure, depends on it.
+    pub cpu: String,
 }
 
 /// Measures the machine (about a second).
@@ -91,6 +94,7 @@ pub fn calibrate(quick: bool) -> Machine {
         bandwidth_gb_s,
         spring_ns,
         kernels: crate::solver::kernel_path(),
+        cpu: crate::cpu::description(),
     }
 }
 

@@ -31,6 +31,7 @@ pub mod anatomy;
 pub mod animation;
 pub mod bench;
 pub mod collision;
+mod cpu;
 pub mod ecs;
 pub mod export;
 pub mod fem;

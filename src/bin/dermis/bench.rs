@@ -41,8 +41,8 @@ pub fn run(args: Args) -> CliResult {
     }
     let m = &report.machine;
     println!(
-        "machine: {} threads, triad {:.1} GB/s, spring {:.2} ns, {} kernels; run took {:.0} s",
-        m.threads, m.bandwidth_gb_s, m.spring_ns, m.kernels, report.wall_s
+        "machine: {}; {} threads, triad {:.1} GB/s, spring {:.2} ns, {} kernels; run took {:.0} s",
+        m.cpu, m.threads, m.bandwidth_gb_s, m.spring_ns, m.kernels, report.wall_s
     );
     println!(
         "{:<10} {:>8} {:>7} {:>9} {:>9} {:>6} {:>11} {:>6} {:>5} {:>7} {:>7} {:>7} {:>6} {:>6} {:>6} {:>6}",
