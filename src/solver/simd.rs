@@ -752,8 +752,8 @@ pub(crate) enum Isa {
     /// AVX2 for the f32 half (with the 32 registers of AVX-512VL), AVX-512F for the f64 half
     /// (x86-64 only, detected at run time). The default on AMD CPUs that have it (Zen 4 on,
     /// which run 512-bit operations on 256-bit units at full clock): there it executes fewer
-    /// instructions and runs faster (session 23, EPYC Zen 4: `relax_probe` 1.25x at 10k, 1.2x
-    /// at 100k and 1M). Elsewhere only on request (`DERMIS_SIMD=avx512`): on the
+    /// instructions and runs faster (session 23, EPYC Zen 4: `relax_probe` 1.27-1.32x at 10k,
+    /// 1.19-1.23x at 100k and 1M). Elsewhere only on request (`DERMIS_SIMD=avx512`): on the
     /// Sapphire-Rapids-class machine it was first measured on it ran slower than
     /// [`Isa::Avx2`] (session 13: 0.91-0.93x at 10k, 0.95-0.97x at 100k).
     Avx512,
