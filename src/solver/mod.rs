@@ -455,19 +455,15 @@ impl SpringSystem {
         for i in 0..n {
             springs[offsets[i]..offsets[i + 1]].sort_by_key(|s| s.other);
         }
-        let too_many = || SolverError::TooManySprings {
-            entries: springs.len(),
+        let too_many = |entries| SolverError::TooManySprings {
+            entries,
             limit: sell::MAX_ENTRIES,
         };
         let offsets = offsets
             .iter()
-            .map(|&o| u32::try_from(o).map_err(|_| too_many()))
+            .map(|&o| u32::try_from(o).map_err(|_| too_many(springs.len())))
             .collect::<Result<Vec<u32>, _>>()?;
-        let sell =
-            Sell::from_csr(&offsets, &springs).map_err(|entries| SolverError::TooManySprings {
-                entries,
-                limit: sell::MAX_ENTRIES,
-            })?;
+        let sell = Sell::from_csr(&offsets, &springs).map_err(too_many)?;
         let mut chunk_readers: Vec<Vec<u32>> =
             (0..kernels::chunks(n) as u32).map(|c| vec![c]).collect();
         for &[a, b] in edges {
