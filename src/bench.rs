@@ -17,7 +17,7 @@ use serde::Serialize;
 
 use crate::mesh::TriMesh;
 use crate::mesh::shapes::tube;
-use crate::solver::{Loads, RelaxConfig, RelaxReport, SpringSystem, VertexAnchor};
+use crate::solver::{Loads, LoopTimes, RelaxConfig, RelaxReport, SpringSystem, VertexAnchor};
 use crate::stiffness::{Modulus, StiffnessRule};
 use arm::{ArmRun, ArmWorkload, CLIP_FRAMES};
 
@@ -211,6 +211,9 @@ pub struct WorkloadReport {
     /// The floor time of those iterations (bandwidth- or compute-bound, from the calibration)
     /// over the measured time: 1 would be at the machine's limit.
     pub relax_fraction_of_floor: f64,
+    /// Where that relaxation's time goes, ns per vertex-iteration (its best run, all threads):
+    /// its parallel loops, and the rest.
+    pub relax_ns_per_vertex_iteration: RelaxLoops,
     /// The part of that relaxation's time that is not its iterations, ms: a solve's set-up
     /// (input checks, the copies to the internal order, the preconditioner, the first force
     /// gather) and its copy back, timed as the best of the same relaxations stopped after 0
@@ -280,9 +283,28 @@ pub struct WorkloadReport {
     pub energy_after_30: f64,
 }
 
+/// Where the fixed 30-iteration relaxation spends its time, ns per vertex-iteration: wall time
+/// of each of its parallel loops over all iterations, divided by iterations and vertices.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct RelaxLoops {
+    /// The curvature gather (`dᵀ H d` along the search direction; each spring once).
+    pub curvature_gather: f64,
+    /// The force gather at the trial point (forces, energy and the sums of the next
+    /// direction), with the solve's first gather.
+    pub force_gather: f64,
+    /// The step to the trial point (`x += a d`, in place).
+    pub step: f64,
+    /// The direction update (`d = w r + β d`).
+    pub direction: f64,
+    /// The rest of the solve: its set-up (input checks, the copies to the internal order, the
+    /// preconditioner), the serial work between the loops and the copy back.
+    pub other: f64,
+}
+
 /// Figures of the fixed 30-iteration relaxation (no projection) of a workload.
 #[derive(Debug, Clone)]
 struct RelaxFigures {
+    loops: RelaxLoops,
     vertex_iterations_per_s: f64,
     fraction_of_floor: f64,
     setup_ms: f64,
@@ -301,18 +323,19 @@ fn thirty(
     anchors: &[VertexAnchor],
     runs: usize,
 ) -> (f64, RelaxReport) {
-    fixed(system, rest, anchors, runs, 30)
+    let (t, report, _) = fixed(system, rest, anchors, runs, 30);
+    (t, report)
 }
 
-/// Best time of `runs` relaxations from the rest shape stopped after `iterations`, s, and the
-/// report.
+/// Best time of `runs` relaxations from the rest shape stopped after `iterations`, s, the
+/// report, and the times of the best run's loops.
 fn fixed(
     system: &SpringSystem,
     rest: &[Vec3],
     anchors: &[VertexAnchor],
     runs: usize,
     iterations: u32,
-) -> (f64, RelaxReport) {
+) -> (f64, RelaxReport, LoopTimes) {
     let loads = Loads {
         anchors: Some(anchors),
         ..Default::default()
@@ -326,9 +349,12 @@ fn fixed(
     (0..runs.max(1))
         .map(|_| {
             let mut x = rest.to_vec();
+            let mut loops = LoopTimes::default();
             let t = Instant::now();
-            let r = system.relax(&mut x, &loads, &config).expect("finite");
-            (t.elapsed().as_secs_f64(), r)
+            let r = system
+                .relax_timed(&mut x, &loads, &config, &mut loops)
+                .expect("finite");
+            (t.elapsed().as_secs_f64(), r, loops)
         })
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .expect("at least one run")
@@ -342,8 +368,8 @@ fn relax_figures(
 ) -> RelaxFigures {
     let n = work.mesh.positions().len();
     let rest = work.mesh.positions();
-    let (t_all, report) = thirty(&work.system, rest, anchors, runs);
-    let (t_setup, _) = fixed(&work.system, rest, anchors, runs, 0);
+    let (t_all, report, loops) = fixed(&work.system, rest, anchors, runs, 30);
+    let (t_setup, _, _) = fixed(&work.system, rest, anchors, runs, 0);
     let one = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
@@ -371,7 +397,17 @@ fn relax_figures(
     let (t_naive, _) = naive_scatter(work, anchors, if n > 500_000 { 3 } else { 10 });
     // Solver vectors: x, d, r and the inverse diagonal (with the pin flag).
     let vectors = SpringSystem::VECTOR_BYTES_PER_VERTEX as f64;
+    // ns per vertex-iteration.
+    let ns = |s: f64| s * 1e9 / (n as f64 * its);
+    let looped = loops.curvature + loops.force + loops.step + loops.direction;
     RelaxFigures {
+        loops: RelaxLoops {
+            curvature_gather: ns(loops.curvature),
+            force_gather: ns(loops.force),
+            step: ns(loops.step),
+            direction: ns(loops.direction),
+            other: ns(loops.total - looped),
+        },
         vertex_iterations_per_s: n as f64 / per_iteration,
         fraction_of_floor: floor / per_iteration,
         setup_ms: t_setup * 1e3,
@@ -524,6 +560,7 @@ pub fn run_arm_workload(
         relax_vertex_iterations_per_s: relax.vertex_iterations_per_s,
         relax_fraction_of_floor: relax.fraction_of_floor,
         relax_setup_ms: relax.setup_ms,
+        relax_ns_per_vertex_iteration: relax.loops,
         collision_us_per_vertex: Some(per_vertex(plan_s + passes_s + projections_s)),
         collision_plan_us_per_vertex: Some(per_vertex(plan_s)),
         collision_passes_us_per_vertex: Some(per_vertex(passes_s)),
@@ -597,6 +634,7 @@ pub fn run_workload(
         relax_vertex_iterations_per_s: relax.vertex_iterations_per_s,
         relax_fraction_of_floor: relax.fraction_of_floor,
         relax_setup_ms: relax.setup_ms,
+        relax_ns_per_vertex_iteration: relax.loops,
         collision_us_per_vertex: None,
         collision_plan_us_per_vertex: None,
         collision_passes_us_per_vertex: None,
@@ -931,6 +969,27 @@ mod tests {
                     w[key]
                 );
             }
+            // The relaxation's loops and the rest: each measured, and together the time per
+            // vertex-iteration the rate reports (the same best run, timed inside the solve).
+            let loops = &w["relax_ns_per_vertex_iteration"];
+            let parts = [
+                "curvature_gather",
+                "force_gather",
+                "step",
+                "direction",
+                "other",
+            ];
+            for key in parts {
+                let v = loops[key].as_f64().unwrap_or(f64::NAN);
+                assert!(v.is_finite() && v > 0.0, "{}: {key} = {v}", w["name"]);
+            }
+            let sum: f64 = parts.iter().map(|k| loops[k].as_f64().unwrap()).sum();
+            let per = 1e9 / w["relax_vertex_iterations_per_s"].as_f64().unwrap();
+            assert!(
+                sum <= per * (1.0 + 1e-9) && sum >= 0.5 * per,
+                "{}: {sum} ns of {per}",
+                w["name"]
+            );
             // The per-frame lists: one entry per timed frame, and the summaries are theirs.
             let frames = w["frames"].as_u64().unwrap() as usize;
             let ms: Vec<f64> = serde_json::from_value(w["frame_ms"].clone()).unwrap();

@@ -171,6 +171,13 @@ mod tests {
             relax_vertex_iterations_per_s: 150e6,
             relax_fraction_of_floor: 0.5,
             relax_setup_ms: 0.2,
+            relax_ns_per_vertex_iteration: crate::bench::RelaxLoops {
+                curvature_gather: 2.0,
+                force_gather: 4.0,
+                step: 0.3,
+                direction: 0.3,
+                other: 0.07,
+            },
             collision_us_per_vertex: arm.then_some(0.6),
             collision_plan_us_per_vertex: arm.then_some(0.05),
             collision_passes_us_per_vertex: arm.then_some(0.15),

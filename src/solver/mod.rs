@@ -29,6 +29,8 @@ pub fn kernel_path() -> &'static str {
     }
 }
 
+use std::time::Instant;
+
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -274,6 +276,46 @@ impl RelaxReport {
     /// `true` when the tolerance was met.
     pub fn converged(&self) -> bool {
         self.stop == StopReason::Converged
+    }
+}
+
+/// Wall time of a solve's parallel loops, s, summed over its iterations (see
+/// [`SpringSystem::relax_timed`]). What the five loops leave of `total` is the solve's set-up,
+/// its copy back and the serial work between the loops.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct LoopTimes {
+    /// The whole solve, from its call to its return.
+    pub total: f64,
+    /// The curvature gathers (`dᵀ H d` along each direction).
+    pub curvature: f64,
+    /// The force gathers: at each trial point, at the start, and again after a rejected trial
+    /// or a projection that moved vertices.
+    pub force: f64,
+    /// The steps to the trial points, and their undoing after a rejection.
+    pub step: f64,
+    /// The direction updates (with the held contacts' projection).
+    pub direction: f64,
+    /// The projections after accepted steps (without the first one, before the solve's first
+    /// force gather).
+    pub projection: f64,
+}
+
+/// Adds a solve's loop times to a [`LoopTimes`], or does nothing.
+struct Clock<'a>(Option<&'a mut LoopTimes>);
+
+impl Clock<'_> {
+    /// Now, when timing.
+    #[inline]
+    fn start(&self) -> Option<Instant> {
+        self.0.as_ref().map(|_| Instant::now())
+    }
+
+    /// Adds the time since `since` (from [`start`](Self::start)) to the loop `field`.
+    #[inline]
+    fn stop(&mut self, since: Option<Instant>, field: fn(&mut LoopTimes) -> &mut f64) {
+        if let (Some(times), Some(since)) = (self.0.as_deref_mut(), since) {
+            *field(times) += since.elapsed().as_secs_f64();
+        }
     }
 }
 
@@ -640,8 +682,26 @@ impl SpringSystem {
         // than a 10k-vertex loop). The team's helpers stay awake for the whole solve.
         let helpers = kernels::chunks(self.vertex_count()).saturating_sub(1);
         Team::lead(helpers, |team| {
-            self.relax_on_pool(x, loads, config, projection, team)
+            self.relax_on_pool(x, loads, config, projection, team, Clock(None))
         })
+    }
+
+    /// [`relax`](Self::relax), with the wall time of its loops added to `times` (the bench's
+    /// breakdown of an iteration). The same answers: the timers only read the clock.
+    pub(crate) fn relax_timed(
+        &self,
+        x: &mut [Vec3],
+        loads: &Loads<'_>,
+        config: &RelaxConfig,
+        times: &mut LoopTimes,
+    ) -> Result<RelaxReport, SolverError> {
+        let start = Instant::now();
+        let helpers = kernels::chunks(self.vertex_count()).saturating_sub(1);
+        let report = Team::lead(helpers, |team| {
+            self.relax_on_pool(x, loads, config, None, team, Clock(Some(&mut *times)))
+        });
+        times.total += start.elapsed().as_secs_f64();
+        report
     }
 
     /// [`relax_projected`](Self::relax_projected), on a worker of the rayon pool.
@@ -652,6 +712,7 @@ impl SpringSystem {
         config: &RelaxConfig,
         mut projection: Option<&mut dyn Projection>,
         team: &Team,
+        mut clock: Clock<'_>,
     ) -> Result<RelaxReport, SolverError> {
         let par = Par::Team(team);
         let n = self.vertex_count();
@@ -702,7 +763,9 @@ impl SpringSystem {
             p.hold(&[]);
             p.project(&mut xi, &self.order);
         }
+        let t = clock.start();
         let mut sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
+        clock.stop(t, |l| &mut l.force);
         // `Σ β²` of the held contacts that pull away (see `ContactSet::constrain`): part of the
         // residual the convergence test sees, though not of the directions.
         let mut chopped_rr = 0.0;
@@ -750,8 +813,10 @@ impl SpringSystem {
         // d = z = w r (preconditioned steepest descent), slope = r·d.
         let mut d = vec![Vec3::ZERO; n];
         let mut rz = sums.rzr;
+        let t = clock.start();
         let mut slope = update_direction(par, &mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
             + contacts.constrain_direction(&mut d, &r);
+        clock.stop(t, |l| &mut l.direction);
         let mut iterations = 0;
         let mut stop = StopReason::Budget;
         let (mut best, mut best_at) = (r_norm, 0u32);
@@ -772,14 +837,18 @@ impl SpringSystem {
             }
             if slope <= 0.0 {
                 // Not a descent direction: restart with steepest (preconditioned) descent.
+                let t = clock.start();
                 slope = update_direction(par, &mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
                     + contacts.constrain_direction(&mut d, &r);
+                clock.stop(t, |l| &mut l.direction);
                 if rz <= 0.0 || slope <= 0.0 {
                     stop = StopReason::Stalled;
                     break;
                 }
             }
+            let t = clock.start();
             let curvature = frame.curvature(&xi, &d, &mut scalar_scratch);
+            clock.stop(t, |l| &mut l.curvature);
             let mut alpha = if curvature > 0.0 {
                 slope / curvature
             } else {
@@ -794,14 +863,22 @@ impl SpringSystem {
             let mut at = 0.0f32;
             for attempt in 0..30 {
                 if attempt > 0 {
+                    let t = clock.start();
                     retreat(par, &mut xi, &d, at, &spills);
+                    clock.stop(t, |l| &mut l.step);
+                    let t = clock.start();
                     frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
+                    clock.stop(t, |l| &mut l.force);
                     contacts.reapply(&mut r);
                 }
                 let a = alpha as f32;
+                let t = clock.start();
                 advance(par, &mut xi, &d, a, &mut spills);
+                clock.stop(t, |l| &mut l.step);
                 at = a;
+                let t = clock.start();
                 let sums = frame.gather_along(&xi, &d, Some(&inv_diag), &mut r, &mut sums_scratch);
+                clock.stop(t, |l| &mut l.force);
                 if sums.energy < energy {
                     accepted = Some(sums);
                     break;
@@ -829,7 +906,10 @@ impl SpringSystem {
             let mut proportioning = false;
             let mut hold_restart = false;
             if let Some(p) = projection.as_deref_mut() {
-                if p.project(&mut xi, &self.order) {
+                let t = clock.start();
+                let moved = p.project(&mut xi, &self.order);
+                clock.stop(t, |l| &mut l.projection);
+                if moved {
                     // The forces again where they read a moved vertex (every chunk when the
                     // projection does not say which moved): the same sums as a whole gather.
                     sums = match p.moved_vertices() {
@@ -895,6 +975,7 @@ impl SpringSystem {
             };
             rz = sums.rzr;
             after_proportioning = proportioning;
+            let t = clock.start();
             slope = if proportioning {
                 // A proportioning step: only the released vertices move (see
                 // `ContactSet::proportioning_direction`); the next iteration restarts.
@@ -902,6 +983,7 @@ impl SpringSystem {
             } else {
                 update_direction(par, &mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch)
             } + contacts.constrain_direction(&mut d, &r);
+            clock.stop(t, |l| &mut l.direction);
         }
         if stop == StopReason::Budget && converged(r_norm) {
             stop = StopReason::Converged;

@@ -833,3 +833,50 @@ fn a_gather_after_a_few_vertices_moved_equals_a_whole_one_bit_for_bit() {
         assert_eq!(got.to_bits(), want.to_bits(), "{again:?} vs {whole:?}");
     }
 }
+
+/// The bench's timed solve answers as the plain one, bit for bit, and its loop times lie
+/// within the solve's: each loop ran, and together they leave the set-up and the serial work.
+#[test]
+fn a_timed_solve_gives_the_same_answer_and_its_loops_fit_in_its_time() {
+    let (mesh, k, x0, anchors, forces) = loaded_sheet(40);
+    let s = SpringSystem::from_mesh(&mesh, &k).unwrap();
+    let loads = Loads {
+        forces: Some(&forces),
+        anchors: Some(&anchors),
+        ..Default::default()
+    };
+    let cfg = RelaxConfig {
+        max_iterations: 25,
+        tolerance: 0.0,
+        ..RelaxConfig::DEFAULT
+    };
+    let (mut plain, mut timed) = (x0.clone(), x0);
+    let want = s.relax(&mut plain, &loads, &cfg).unwrap();
+    let mut times = LoopTimes::default();
+    let wall = std::time::Instant::now();
+    let got = s.relax_timed(&mut timed, &loads, &cfg, &mut times).unwrap();
+    let wall = wall.elapsed().as_secs_f64();
+    assert_eq!(got, want);
+    assert!(got.iterations > 0);
+    let bits = |x: &[Vec3]| -> Vec<u32> {
+        x.iter()
+            .flat_map(|p| p.to_array())
+            .map(f32::to_bits)
+            .collect()
+    };
+    assert_eq!(bits(&timed), bits(&plain));
+    let loops = [times.curvature, times.force, times.step, times.direction];
+    assert!(loops.iter().all(|&t| t > 0.0), "{times:?}");
+    // No projection: nothing timed there.
+    assert_eq!(times.projection, 0.0);
+    let looped: f64 = loops.iter().sum();
+    assert!(
+        looped < times.total && times.total <= wall,
+        "{times:?} in {wall} s"
+    );
+    // A second solve adds to the same times.
+    let before = times;
+    let mut again = plain.clone();
+    s.relax_timed(&mut again, &loads, &cfg, &mut times).unwrap();
+    assert!(times.total > before.total && times.force > before.force);
+}

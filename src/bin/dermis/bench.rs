@@ -93,6 +93,14 @@ pub fn run(args: Args) -> CliResult {
          ordered time"
     );
     for w in &report.workloads {
+        let l = &w.relax_ns_per_vertex_iteration;
+        println!(
+            "{} relaxation, ns per vertex-iteration: curvature gather {:.2}, force gather {:.2}, \
+             step {:.2}, direction {:.2}, other {:.2}",
+            w.name, l.curvature_gather, l.force_gather, l.step, l.direction, l.other
+        );
+    }
+    for w in &report.workloads {
         if let (Some(plan), Some(passes), Some(projections)) = (
             w.collision_plan_us_per_vertex,
             w.collision_passes_us_per_vertex,
