@@ -399,7 +399,7 @@ fn relax_figures(
     let vectors = SpringSystem::VECTOR_BYTES_PER_VERTEX as f64;
     // ns per vertex-iteration.
     let ns = |s: f64| s * 1e9 / (n as f64 * its);
-    let looped = loops.curvature + loops.force + loops.step + loops.direction;
+    let looped = loops.curvature + loops.force + loops.step + loops.direction + loops.projection;
     RelaxFigures {
         loops: RelaxLoops {
             curvature_gather: ns(loops.curvature),

@@ -676,14 +676,7 @@ impl SpringSystem {
         config: &RelaxConfig,
         projection: Option<&mut dyn Projection>,
     ) -> Result<RelaxReport, SolverError> {
-        // The whole solve runs on the rayon pool as the leader of a team (see `team`): each
-        // iteration has several short parallel loops, and handed to rayon one by one every
-        // loop would wait for a sleeping worker to wake up (futex round trips that cost more
-        // than a 10k-vertex loop). The team's helpers stay awake for the whole solve.
-        let helpers = kernels::chunks(self.vertex_count()).saturating_sub(1);
-        Team::lead(helpers, |team| {
-            self.relax_on_pool(x, loads, config, projection, team, Clock(None))
-        })
+        self.lead(x, loads, config, projection, Clock(None))
     }
 
     /// [`relax`](Self::relax), with the wall time of its loops added to `times` (the bench's
@@ -696,12 +689,28 @@ impl SpringSystem {
         times: &mut LoopTimes,
     ) -> Result<RelaxReport, SolverError> {
         let start = Instant::now();
-        let helpers = kernels::chunks(self.vertex_count()).saturating_sub(1);
-        let report = Team::lead(helpers, |team| {
-            self.relax_on_pool(x, loads, config, None, team, Clock(Some(&mut *times)))
-        });
+        let report = self.lead(x, loads, config, None, Clock(Some(&mut *times)));
         times.total += start.elapsed().as_secs_f64();
         report
+    }
+
+    /// Runs the solve as the leader of a team of the pool's threads (see `team`).
+    fn lead(
+        &self,
+        x: &mut [Vec3],
+        loads: &Loads<'_>,
+        config: &RelaxConfig,
+        projection: Option<&mut dyn Projection>,
+        clock: Clock<'_>,
+    ) -> Result<RelaxReport, SolverError> {
+        // The whole solve runs on the rayon pool as the leader of a team (see `team`): each
+        // iteration has several short parallel loops, and handed to rayon one by one every
+        // loop would wait for a sleeping worker to wake up (futex round trips that cost more
+        // than a 10k-vertex loop). The team's helpers stay awake for the whole solve.
+        let helpers = kernels::chunks(self.vertex_count()).saturating_sub(1);
+        Team::lead(helpers, |team| {
+            self.relax_on_pool(x, loads, config, projection, team, clock)
+        })
     }
 
     /// [`relax_projected`](Self::relax_projected), on a worker of the rayon pool.
