@@ -304,17 +304,17 @@ pub(crate) struct LoopTimes {
 struct Clock<'a>(Option<&'a mut LoopTimes>);
 
 impl Clock<'_> {
-    /// Now, when timing.
+    /// Runs `f`, adding its wall time to the loop `field` when timing.
     #[inline]
-    fn start(&self) -> Option<Instant> {
-        self.0.as_ref().map(|_| Instant::now())
-    }
-
-    /// Adds the time since `since` (from [`start`](Self::start)) to the loop `field`.
-    #[inline]
-    fn stop(&mut self, since: Option<Instant>, field: fn(&mut LoopTimes) -> &mut f64) {
-        if let (Some(times), Some(since)) = (self.0.as_deref_mut(), since) {
-            *field(times) += since.elapsed().as_secs_f64();
+    fn time<R>(&mut self, field: fn(&mut LoopTimes) -> &mut f64, f: impl FnOnce() -> R) -> R {
+        match self.0.as_deref_mut() {
+            Some(times) => {
+                let start = Instant::now();
+                let out = f();
+                *field(times) += start.elapsed().as_secs_f64();
+                out
+            }
+            None => f(),
         }
     }
 }
@@ -772,9 +772,10 @@ impl SpringSystem {
             p.hold(&[]);
             p.project(&mut xi, &self.order);
         }
-        let t = clock.start();
-        let mut sums = frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
-        clock.stop(t, |l| &mut l.force);
+        let mut sums = clock.time(
+            |l| &mut l.force,
+            || frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch),
+        );
         // `Σ β²` of the held contacts that pull away (see `ContactSet::constrain`): part of the
         // residual the convergence test sees, though not of the directions.
         let mut chopped_rr = 0.0;
@@ -822,10 +823,13 @@ impl SpringSystem {
         // d = z = w r (preconditioned steepest descent), slope = r·d.
         let mut d = vec![Vec3::ZERO; n];
         let mut rz = sums.rzr;
-        let t = clock.start();
-        let mut slope = update_direction(par, &mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
-            + contacts.constrain_direction(&mut d, &r);
-        clock.stop(t, |l| &mut l.direction);
+        let mut slope = clock.time(
+            |l| &mut l.direction,
+            || {
+                update_direction(par, &mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
+                    + contacts.constrain_direction(&mut d, &r)
+            },
+        );
         let mut iterations = 0;
         let mut stop = StopReason::Budget;
         let (mut best, mut best_at) = (r_norm, 0u32);
@@ -846,18 +850,22 @@ impl SpringSystem {
             }
             if slope <= 0.0 {
                 // Not a descent direction: restart with steepest (preconditioned) descent.
-                let t = clock.start();
-                slope = update_direction(par, &mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
-                    + contacts.constrain_direction(&mut d, &r);
-                clock.stop(t, |l| &mut l.direction);
+                slope = clock.time(
+                    |l| &mut l.direction,
+                    || {
+                        update_direction(par, &mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
+                            + contacts.constrain_direction(&mut d, &r)
+                    },
+                );
                 if rz <= 0.0 || slope <= 0.0 {
                     stop = StopReason::Stalled;
                     break;
                 }
             }
-            let t = clock.start();
-            let curvature = frame.curvature(&xi, &d, &mut scalar_scratch);
-            clock.stop(t, |l| &mut l.curvature);
+            let curvature = clock.time(
+                |l| &mut l.curvature,
+                || frame.curvature(&xi, &d, &mut scalar_scratch),
+            );
             let mut alpha = if curvature > 0.0 {
                 slope / curvature
             } else {
@@ -872,22 +880,23 @@ impl SpringSystem {
             let mut at = 0.0f32;
             for attempt in 0..30 {
                 if attempt > 0 {
-                    let t = clock.start();
-                    retreat(par, &mut xi, &d, at, &spills);
-                    clock.stop(t, |l| &mut l.step);
-                    let t = clock.start();
-                    frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch);
-                    clock.stop(t, |l| &mut l.force);
+                    clock.time(|l| &mut l.step, || retreat(par, &mut xi, &d, at, &spills));
+                    clock.time(
+                        |l| &mut l.force,
+                        || frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch),
+                    );
                     contacts.reapply(&mut r);
                 }
                 let a = alpha as f32;
-                let t = clock.start();
-                advance(par, &mut xi, &d, a, &mut spills);
-                clock.stop(t, |l| &mut l.step);
+                clock.time(
+                    |l| &mut l.step,
+                    || advance(par, &mut xi, &d, a, &mut spills),
+                );
                 at = a;
-                let t = clock.start();
-                let sums = frame.gather_along(&xi, &d, Some(&inv_diag), &mut r, &mut sums_scratch);
-                clock.stop(t, |l| &mut l.force);
+                let sums = clock.time(
+                    |l| &mut l.force,
+                    || frame.gather_along(&xi, &d, Some(&inv_diag), &mut r, &mut sums_scratch),
+                );
                 if sums.energy < energy {
                     accepted = Some(sums);
                     break;
@@ -915,9 +924,7 @@ impl SpringSystem {
             let mut proportioning = false;
             let mut hold_restart = false;
             if let Some(p) = projection.as_deref_mut() {
-                let t = clock.start();
-                let moved = p.project(&mut xi, &self.order);
-                clock.stop(t, |l| &mut l.projection);
+                let moved = clock.time(|l| &mut l.projection, || p.project(&mut xi, &self.order));
                 if moved {
                     // The forces again where they read a moved vertex (every chunk when the
                     // projection does not say which moved): the same sums as a whole gather.
@@ -984,15 +991,26 @@ impl SpringSystem {
             };
             rz = sums.rzr;
             after_proportioning = proportioning;
-            let t = clock.start();
-            slope = if proportioning {
-                // A proportioning step: only the released vertices move (see
-                // `ContactSet::proportioning_direction`); the next iteration restarts.
-                contacts.proportioning_direction(&mut d, &r, &inv_diag)
-            } else {
-                update_direction(par, &mut d, &r, &inv_diag, beta as f32, &mut scalar_scratch)
-            } + contacts.constrain_direction(&mut d, &r);
-            clock.stop(t, |l| &mut l.direction);
+            slope = clock.time(
+                |l| &mut l.direction,
+                || {
+                    let slope = if proportioning {
+                        // A proportioning step: only the released vertices move (see
+                        // `ContactSet::proportioning_direction`); the next iteration restarts.
+                        contacts.proportioning_direction(&mut d, &r, &inv_diag)
+                    } else {
+                        update_direction(
+                            par,
+                            &mut d,
+                            &r,
+                            &inv_diag,
+                            beta as f32,
+                            &mut scalar_scratch,
+                        )
+                    };
+                    slope + contacts.constrain_direction(&mut d, &r)
+                },
+            );
         }
         if stop == StopReason::Budget && converged(r_norm) {
             stop = StopReason::Converged;
