@@ -33,7 +33,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{CHUNK, SkinCollision};
-use crate::solver::{ActiveContact, Projection};
+use crate::solver::{ActiveContact, Projection, Step};
 
 /// A [`Projection`] that times every call of the one it wraps. It forwards the active contacts
 /// and the held set, so a relaxation converges on the contact set exactly as without it
@@ -78,6 +78,20 @@ impl<P: Projection + ?Sized> Projection for Timed<'_, P> {
 
     fn hold(&mut self, held: &[bool]) {
         self.inner.hold(held);
+    }
+
+    fn project_step(&mut self, x: &mut [Vec3], order: &[u32], step: &Step<'_>) -> bool {
+        let start = Instant::now();
+        let moved = self.inner.project_step(x, order, step);
+        self.seconds += start.elapsed().as_secs_f64();
+        self.calls += 1;
+        moved
+    }
+
+    fn settled(&mut self, x: &[Vec3]) {
+        let start = Instant::now();
+        self.inner.settled(x);
+        self.seconds += start.elapsed().as_secs_f64();
     }
 }
 

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::mesh::TopologyError;
-use crate::solver::{ActiveContact, Projection};
+use crate::solver::{ActiveContact, Projection, Step};
 use cache::{Answer, Patch, Slot};
 use collider::NONE;
 use plan::{Batch, LANES, Motion};
@@ -238,6 +238,11 @@ pub struct ContactDiagnostics {
     /// plus every collider's travel, stayed within the distance that proves them outside every
     /// contact band, so the pass did not read their per-collider state at all.
     pub skipped_vertices: u64,
+    /// Of those, the ones in blocks of [`STEP_BLOCK`](crate::solver::STEP_BLOCK) vertices
+    /// that a pass right after a solver's step ([`Projection::project_step`]) skipped without
+    /// reading them: the step's bound on their motion since the block was last tested stayed
+    /// within what its vertices' tests allow.
+    pub skipped_in_blocks: u64,
     /// Vertices stopped by the swept test (a step that would have crossed a collider).
     pub swept_hits: u64,
     /// Substeps used by the last [`SkinCollision::begin_frame`].
@@ -388,6 +393,7 @@ struct Counters {
     skipped_aabb: u64,
     skipped_bound: u64,
     skipped_vertices: u64,
+    skipped_in_blocks: u64,
     swept_hits: u64,
 }
 
@@ -409,6 +415,7 @@ impl Counters {
         self.skipped_aabb += o.skipped_aabb;
         self.skipped_bound += o.skipped_bound;
         self.skipped_vertices += o.skipped_vertices;
+        self.skipped_in_blocks += o.skipped_in_blocks;
         self.swept_hits += o.swept_hits;
     }
 }
@@ -1074,6 +1081,7 @@ impl SkinCollision {
         d.skipped_aabb += c.skipped_aabb;
         d.skipped_bound += c.skipped_bound;
         d.skipped_vertices += c.skipped_vertices;
+        d.skipped_in_blocks += c.skipped_in_blocks;
         d.swept_hits += c.swept_hits;
     }
 
@@ -1232,10 +1240,9 @@ impl SkinCollision {
     }
 }
 
-impl Projection for SkinCollision {
-    /// Pushes every vertex closer than its thickness to (or inside) a collider out to the
-    /// thickness, after a swept test along its step since the last pass.
-    fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool {
+impl SkinCollision {
+    /// A projection pass ([`Projection::project`]), after the solver's `step` if given.
+    fn project_after(&mut self, x: &mut [Vec3], order: &[u32], step: Option<&Step<'_>>) -> bool {
         let n = self.vertex_count();
         self.active.clear();
         self.active_owner.clear();
@@ -1253,7 +1260,7 @@ impl Projection for SkinCollision {
         }
         // The touching vertices come in the solver's order; each with its contacts in
         // resolution order below.
-        let Some((done, touching)) = self.project_pass(x) else {
+        let Some((done, touching)) = self.project_pass(x, step) else {
             return false;
         };
         let moved = done.counters.moved > 0;
@@ -1271,6 +1278,26 @@ impl Projection for SkinCollision {
             }
         }
         moved
+    }
+}
+
+impl Projection for SkinCollision {
+    /// Pushes every vertex closer than its thickness to (or inside) a collider out to the
+    /// thickness, after a swept test along its step since the last pass.
+    fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool {
+        self.project_after(x, order, None)
+    }
+
+    /// [`project`](Self::project) after a solver's step: blocks of vertices whose motion,
+    /// bounded by the step, keeps them provably outside every contact band are not read at
+    /// all, and the swept test takes each vertex's last position from the step. Same
+    /// answers.
+    fn project_step(&mut self, x: &mut [Vec3], order: &[u32], step: &Step<'_>) -> bool {
+        self.project_after(x, order, Some(step))
+    }
+
+    fn settled(&mut self, x: &[Vec3]) {
+        self.settle_view(x);
     }
 
     /// Every vertex on a collider's surface (within `tolerance_m` of the thickness, or inside

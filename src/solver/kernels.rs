@@ -11,6 +11,7 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
+use super::STEP_BLOCK;
 use super::sell::{LANES, Sell};
 use super::simd::{self, ForceInputs, Isa, SlicedAnchors};
 use super::team::{Chunked, Par};
@@ -192,6 +193,8 @@ impl Frame<'_> {
 }
 
 /// The direction update `d = w·r + β d`; returns `Σ r·d` (the slope along the new direction).
+/// `reach` (one entry per [`STEP_BLOCK`] vertices) receives each block's largest `|d|`
+/// component.
 #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
 pub(crate) fn update_direction(
     par: Par<'_>,
@@ -199,15 +202,17 @@ pub(crate) fn update_direction(
     r: &[Vec3],
     w: &[f32],
     beta: f32,
-    partial: &mut [f64],
+    (partial, reach): (&mut [f64], &mut [f32]),
 ) -> f64 {
     let isa = Isa::detect(0);
+    assert_eq!(reach.len(), d.len().div_ceil(STEP_BLOCK));
     let (ds, ps) = (Chunked::new(d, CHUNK), Chunked::new(partial, 1));
+    let reaches = Chunked::new(reach, CHUNK / STEP_BLOCK);
     par.for_each(ps.chunks(), |c| {
         let range = c * CHUNK..((c + 1) * CHUNK).min(r.len());
         // SAFETY: each chunk index once per loop.
-        let (d, p) = unsafe { (ds.chunk(c), ps.chunk(c)) };
-        p[0] = simd::direction(isa, d, &r[range.clone()], &w[range], beta);
+        let (d, p, reach) = unsafe { (ds.chunk(c), ps.chunk(c), reaches.chunk(c)) };
+        p[0] = simd::direction(isa, d, &r[range.clone()], &w[range], beta, reach);
     });
     total(partial)
 }

@@ -200,6 +200,75 @@ pub trait Projection: Send {
     fn hold(&mut self, held: &[bool]) {
         let _ = held;
     }
+
+    /// [`project`](Self::project) right after the solver's step `step` (the only motion of
+    /// `x` since the last projection): `step` tells where each vertex was at that projection
+    /// ([`Step::before`]) and bounds how far each block of [`STEP_BLOCK`] vertices moved
+    /// ([`Step::motion`]), so that a projection can skip whole blocks that provably stayed
+    /// clear, and need not keep its own copy of the last positions. The default projects
+    /// as [`project`](Self::project). A solve that calls this ends with
+    /// [`settled`](Self::settled).
+    fn project_step(&mut self, x: &mut [Vec3], order: &[u32], step: &Step<'_>) -> bool {
+        let _ = step;
+        self.project(x, order)
+    }
+
+    /// The solve that called [`project_step`](Self::project_step) ended; `x` (internal
+    /// order) holds the positions of its last projection. The default does nothing.
+    fn settled(&mut self, x: &[Vec3]) {
+        let _ = x;
+    }
+}
+
+/// Vertices per block of a [`Step`]'s motion bounds (internal order: block `b` is the
+/// vertices `STEP_BLOCK b..STEP_BLOCK (b + 1)`).
+pub const STEP_BLOCK: usize = 64;
+
+/// The solver's last step `x += a d` (internal order), as a [`Projection`] sees it: exactly
+/// where each vertex was before it, and a bound on how far each block of [`STEP_BLOCK`]
+/// vertices moved.
+pub struct Step<'a> {
+    d: &'a [Vec3],
+    a: f32,
+    spills: &'a Spills,
+    /// The largest `|d|` component of each block.
+    reach: &'a [f32],
+}
+
+impl Step<'_> {
+    /// The position of internal vertex `i` before the step, bit for bit, given its position
+    /// `x` after it: `x − a d` (one rounding per component), with the few floats that does
+    /// not give back (noted by the step) put back.
+    pub fn before(&self, i: usize, x: Vec3) -> Vec3 {
+        let d = self.d[i];
+        let mut p = Vec3::new(
+            d.x.mul_add(-self.a, x.x),
+            d.y.mul_add(-self.a, x.y),
+            d.z.mul_add(-self.a, x.z),
+        );
+        let (chunk, first) = (i / kernels::CHUNK, 3 * (i % kernels::CHUNK));
+        for &(f, old) in self.spills.get(chunk).map_or(&[][..], Vec::as_slice) {
+            let f = f as usize;
+            if (first..first + 3).contains(&f) {
+                p[f - first] = old;
+            }
+        }
+        p
+    }
+
+    /// A bound, m, on how far any vertex of block `b` moved in the step, for vertices whose
+    /// coordinates were at most `magnitude` (absolute value) before it: `|a| √3 max |d|`
+    /// plus the rounding of `x + a d` (half an ulp of the result per component).
+    pub fn motion(&self, b: usize, magnitude: f32) -> f64 {
+        let along = f64::from(self.a.abs()) * f64::from(self.reach[b]);
+        let rounding = (f64::from(magnitude) + along) * f64::from(f32::EPSILON);
+        (along * (1.0 + 1e-6) + rounding) * 3f64.sqrt() * (1.0 + 1e-9)
+    }
+
+    /// The number of blocks.
+    pub fn blocks(&self) -> usize {
+        self.reach.len()
+    }
 }
 /// Iteration budget and tolerance of a relaxation.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -762,6 +831,8 @@ impl SpringSystem {
         let chunks = kernels::chunks(n);
         let mut sums_scratch = vec![Sums::default(); chunks];
         let mut scalar_scratch = vec![0.0f64; chunks];
+        // Each block's largest direction component, for the projection's motion bounds.
+        let mut reach = vec![0.0f32; n.div_ceil(STEP_BLOCK)];
         let mut r = vec![Vec3::ZERO; n];
         let mut spills = Spills::new();
         let mut stale = Vec::new();
@@ -826,8 +897,14 @@ impl SpringSystem {
         let mut slope = clock.time(
             |l| &mut l.direction,
             || {
-                update_direction(par, &mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
-                    + contacts.constrain_direction(&mut d, &r)
+                update_direction(
+                    par,
+                    &mut d,
+                    &r,
+                    &inv_diag,
+                    0.0,
+                    (&mut scalar_scratch, &mut reach),
+                ) + contacts.constrain_direction(&mut d, &r)
             },
         );
         let mut iterations = 0;
@@ -835,6 +912,8 @@ impl SpringSystem {
         let (mut best, mut best_at) = (r_norm, 0u32);
         // The last step was a proportioning step: the next direction starts afresh.
         let mut after_proportioning = false;
+        // Whether the projection saw a step (it then expects `settled` at the end).
+        let mut stepped = false;
         while iterations < config.max_iterations {
             if converged(r_norm) {
                 stop = StopReason::Converged;
@@ -853,8 +932,14 @@ impl SpringSystem {
                 slope = clock.time(
                     |l| &mut l.direction,
                     || {
-                        update_direction(par, &mut d, &r, &inv_diag, 0.0, &mut scalar_scratch)
-                            + contacts.constrain_direction(&mut d, &r)
+                        update_direction(
+                            par,
+                            &mut d,
+                            &r,
+                            &inv_diag,
+                            0.0,
+                            (&mut scalar_scratch, &mut reach),
+                        ) + contacts.constrain_direction(&mut d, &r)
                     },
                 );
                 if rz <= 0.0 || slope <= 0.0 {
@@ -924,7 +1009,17 @@ impl SpringSystem {
             let mut proportioning = false;
             let mut hold_restart = false;
             if let Some(p) = projection.as_deref_mut() {
-                let moved = clock.time(|l| &mut l.projection, || p.project(&mut xi, &self.order));
+                let step = Step {
+                    d: &d,
+                    a: at,
+                    spills: &spills,
+                    reach: &reach,
+                };
+                let moved = clock.time(
+                    |l| &mut l.projection,
+                    || p.project_step(&mut xi, &self.order, &step),
+                );
+                stepped = true;
                 if moved {
                     // The forces again where they read a moved vertex (every chunk when the
                     // projection does not say which moved): the same sums as a whole gather.
@@ -997,7 +1092,9 @@ impl SpringSystem {
                     let slope = if proportioning {
                         // A proportioning step: only the released vertices move (see
                         // `ContactSet::proportioning_direction`); the next iteration restarts.
-                        contacts.proportioning_direction(&mut d, &r, &inv_diag)
+                        let slope = contacts.proportioning_direction(&mut d, &r, &inv_diag);
+                        block_reach(&d, &mut reach);
+                        slope
                     } else {
                         update_direction(
                             par,
@@ -1005,7 +1102,7 @@ impl SpringSystem {
                             &r,
                             &inv_diag,
                             beta as f32,
-                            &mut scalar_scratch,
+                            (&mut scalar_scratch, &mut reach),
                         )
                     };
                     slope + contacts.constrain_direction(&mut d, &r)
@@ -1015,8 +1112,20 @@ impl SpringSystem {
         if stop == StopReason::Budget && converged(r_norm) {
             stop = StopReason::Converged;
         }
+        if let Some(p) = projection.filter(|_| stepped) {
+            p.settled(&xi);
+        }
         self.to_caller(&xi, x);
         Ok(report(iterations, r_norm, energy, stop, history))
+    }
+}
+
+/// Each block's largest `|d|` component into `reach` (one entry per [`STEP_BLOCK`] vertices).
+fn block_reach(d: &[Vec3], reach: &mut [f32]) {
+    for (r, block) in reach.iter_mut().zip(d.chunks(STEP_BLOCK)) {
+        *r = block
+            .iter()
+            .fold(0.0f32, |m, v| m.max(v.abs().max_element()));
     }
 }
 

@@ -25,7 +25,7 @@ use glam::Vec3;
 
 use super::kernels::Sums;
 use super::sell::{LANES, PAIR_LANES, Refs, Sell};
-use super::{VertexAnchor, fused};
+use super::{STEP_BLOCK, VertexAnchor, fused};
 
 /// Eight lanes of f32 (and f64) arithmetic.
 pub(crate) trait Lanes: Copy {
@@ -1389,14 +1389,27 @@ impl ForceInputs<'_> {
 /// The direction update `d = w·r + β d` of one chunk; returns `Σ r·d`, each vertex's product
 /// in f32 (the plain loop's operations) summed in f64 per lane (lane = vertex mod 8), the lanes
 /// added in order at the end: eight independent sums, not one chain of dependent additions.
+/// `reach[b]` receives the largest `|d|` component of the new direction over the vertices
+/// `STEP_BLOCK b..STEP_BLOCK (b + 1)` of the chunk (see [`super::Step`]).
 #[inline(always)]
-fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
-    assert!(r.len() == d.len() && w.len() == d.len());
+fn direction_chunk<S: Lanes>(
+    l: S,
+    d: &mut [Vec3],
+    r: &[Vec3],
+    w: &[f32],
+    beta: f32,
+    reach: &mut [f32],
+) -> f64 {
+    assert!(
+        r.len() == d.len() && w.len() == d.len() && reach.len() == d.len().div_ceil(STEP_BLOCK)
+    );
     let full = d.len() / LANES * LANES;
     let b = l.splat(beta);
     let mut acc = l.dsplat(0.0);
+    let mut largest = l.splat(0.0);
     // Elementwise on the floats as stored (no transposes): eight vertices are three registers
-    // of eight floats; only the products `r·d` are regrouped per component for the dot.
+    // of eight floats; only the products `r·d` are regrouped per component for the dot. The
+    // largest component is a max over the floats, whatever their component.
     for o in (0..full).step_by(LANES) {
         let (rp, dp) = (
             r[o..].as_ptr().cast::<f32>(),
@@ -1417,13 +1430,28 @@ fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: 
         }
         let [px, py, pz] = l.deinterleave(std::array::from_fn(|k| l.mul(rv[k], nv[k])));
         acc = l.dadd(acc, l.widen(l.add(l.add(px, py), pz)));
+        largest = l.max(
+            largest,
+            l.max(l.abs(nv[0]), l.max(l.abs(nv[1]), l.abs(nv[2]))),
+        );
+        if (o + LANES).is_multiple_of(STEP_BLOCK) || o + LANES == full {
+            reach[o / STEP_BLOCK] = l.store(largest).into_iter().fold(0.0, f32::max);
+            largest = l.splat(0.0);
+        }
     }
     if full < d.len() {
         let mut tail = [0.0f64; LANES];
+        let mut largest = if full.is_multiple_of(STEP_BLOCK) {
+            0.0f32
+        } else {
+            reach[full / STEP_BLOCK]
+        };
         for i in full..d.len() {
             d[i] = d[i].mul_add(Vec3::splat(beta), r[i] * w[i]);
             tail[i - full] = r[i].dot(d[i]) as f64;
+            largest = largest.max(d[i].abs().max_element());
         }
+        reach[full / STEP_BLOCK] = largest;
         acc = l.dadd(acc, l.dfrom(tail));
     }
     l.dstore(acc).iter().fold(0.0f64, |a, b| a + b)
@@ -1431,18 +1459,31 @@ fn direction_chunk<S: Lanes>(l: S, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: 
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn direction_chunk_avx2(d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
-    direction_chunk(avx2::Avx2, d, r, w, beta)
+fn direction_chunk_avx2(
+    d: &mut [Vec3],
+    r: &[Vec3],
+    w: &[f32],
+    beta: f32,
+    reach: &mut [f32],
+) -> f64 {
+    direction_chunk(avx2::Avx2, d, r, w, beta, reach)
 }
 
 /// `d = w·r + β d` over one chunk, returning `Σ r·d` in vertex order (see
 /// [`super::kernels::update_direction`]).
-pub(crate) fn direction(isa: Isa, d: &mut [Vec3], r: &[Vec3], w: &[f32], beta: f32) -> f64 {
+pub(crate) fn direction(
+    isa: Isa,
+    d: &mut [Vec3],
+    r: &[Vec3],
+    w: &[f32],
+    beta: f32,
+    reach: &mut [f32],
+) -> f64 {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only returned after the AVX2 check.
-        Isa::Avx2 | Isa::Avx512 => unsafe { direction_chunk_avx2(d, r, w, beta) },
-        _ => direction_chunk(Scalar, d, r, w, beta),
+        Isa::Avx2 | Isa::Avx512 => unsafe { direction_chunk_avx2(d, r, w, beta, reach) },
+        _ => direction_chunk(Scalar, d, r, w, beta, reach),
     }
 }
 
@@ -2059,13 +2100,22 @@ mod tests {
             .map(|(x, d)| d.mul_add(Vec3::splat(a), *x))
             .collect();
         let bits = |v: &Vec3| v.to_array().map(f32::to_bits);
+        // Each block's largest component (the last block partial, its SIMD part ending
+        // inside it).
+        let want_reach: Vec<f32> = want_d
+            .chunks(STEP_BLOCK)
+            .map(|b| b.iter().map(|v| v.abs().max_element()).fold(0.0, f32::max))
+            .collect();
+        assert_eq!(want_reach.len(), 16);
         for isa in isas() {
             let mut d = d0.clone();
-            let got = direction(isa, &mut d, &r, &w, beta);
+            let mut reach = vec![-1.0f32; n.div_ceil(STEP_BLOCK)];
+            let got = direction(isa, &mut d, &r, &w, beta, &mut reach);
             assert_eq!(got.to_bits(), want.to_bits(), "{isa:?}");
             for (a, b) in d.iter().zip(&want_d) {
                 assert_eq!(bits(a), bits(b));
             }
+            assert_eq!(reach, want_reach, "{isa:?}");
             let mut x = x0.clone();
             advance(isa, &mut x, &d0, a, &mut Vec::new());
             for (a, b) in x.iter().zip(&want_x) {
@@ -2121,7 +2171,35 @@ mod tests {
             advance(isa, &mut x, &d, a, &mut spill);
             assert!(!spill.is_empty(), "{isa:?}");
             assert!(spill.len() < 3 * n / 10, "{isa:?}: {} spilled", spill.len());
-            retreat(isa, &mut x, &d, a, &spill);
+            // What a projection learns from the step: each vertex's position before it, bit
+            // for bit, and a bound on each block's motion.
+            let spills = vec![spill];
+            let mut reach = vec![0.0f32; n.div_ceil(STEP_BLOCK)];
+            crate::solver::block_reach(&d, &mut reach);
+            let step = crate::solver::Step {
+                d: &d,
+                a,
+                spills: &spills,
+                reach: &reach,
+            };
+            let before: Vec<Vec3> = (0..n).map(|i| step.before(i, x[i])).collect();
+            assert_eq!(bits(&before), bits(&x0), "{isa:?}");
+            for (b, (x, x0)) in x.chunks(STEP_BLOCK).zip(x0.chunks(STEP_BLOCK)).enumerate() {
+                let magnitude = x0.iter().map(|p| p.abs().max_element()).fold(0.0, f32::max);
+                let bound = step.motion(b, magnitude);
+                let moved = x
+                    .iter()
+                    .zip(x0)
+                    .map(|(x, x0)| x.as_dvec3().distance(x0.as_dvec3()))
+                    .fold(0.0, f64::max);
+                assert!(moved <= bound, "{isa:?} block {b}: {moved} > {bound}");
+                // Not loose by more than the component-to-length factor.
+                assert!(
+                    bound < 1.8 * moved,
+                    "{isa:?} block {b}: {bound} for {moved}"
+                );
+            }
+            retreat(isa, &mut x, &d, a, &spills[0]);
             assert_eq!(bits(&x), bits(&x0), "{isa:?}");
         }
     }
