@@ -897,14 +897,12 @@ impl SpringSystem {
         let mut slope = clock.time(
             |l| &mut l.direction,
             || {
-                update_direction(
+                steepest(
                     par,
-                    &mut d,
-                    &r,
-                    &inv_diag,
-                    0.0,
+                    (&mut d, &r, &inv_diag),
+                    &contacts,
                     (&mut scalar_scratch, &mut reach),
-                ) + contacts.constrain_direction(&mut d, &r)
+                )
             },
         );
         let mut iterations = 0;
@@ -932,14 +930,12 @@ impl SpringSystem {
                 slope = clock.time(
                     |l| &mut l.direction,
                     || {
-                        update_direction(
+                        steepest(
                             par,
-                            &mut d,
-                            &r,
-                            &inv_diag,
-                            0.0,
+                            (&mut d, &r, &inv_diag),
+                            &contacts,
                             (&mut scalar_scratch, &mut reach),
-                        ) + contacts.constrain_direction(&mut d, &r)
+                        )
                     },
                 );
                 if rz <= 0.0 || slope <= 0.0 {
@@ -1118,6 +1114,18 @@ impl SpringSystem {
         self.to_caller(&xi, x);
         Ok(report(iterations, r_norm, energy, stop, history))
     }
+}
+
+/// The preconditioned steepest-descent direction `d = w r` without the held contacts'
+/// normal components (with each block's largest component in `reach`); returns the slope
+/// `Σ r·d`.
+fn steepest(
+    par: Par<'_>,
+    (d, r, w): (&mut [Vec3], &[Vec3], &[f32]),
+    contacts: &ContactSet,
+    scratch: (&mut [f64], &mut [f32]),
+) -> f64 {
+    update_direction(par, d, r, w, 0.0, scratch) + contacts.constrain_direction(d, r)
 }
 
 /// Each block's largest `|d|` component into `reach` (one entry per [`STEP_BLOCK`] vertices).
