@@ -227,6 +227,48 @@ pub const STEP_BLOCK: usize = 64;
 /// The solver's last step `x += a d` (internal order), as a [`Projection`] sees it: exactly
 /// where each vertex was before it, and a bound on how far each block of [`STEP_BLOCK`]
 /// vertices moved.
+///
+/// ```
+/// use dermis::prelude::*;
+/// use dermis::solver::{Loads, Projection, STEP_BLOCK, Step};
+/// use glam::Vec3;
+/// /// Keeps the vertices above the plane `z = 0`; checks what the steps tell.
+/// struct Floor {
+///     steps: usize,
+/// }
+/// impl Projection for Floor {
+///     fn project(&mut self, x: &mut [Vec3], _order: &[u32]) -> bool {
+///         let low: Vec<&mut Vec3> = x.iter_mut().filter(|p| p.z < 0.0).collect();
+///         let moved = !low.is_empty();
+///         low.into_iter().for_each(|p| p.z = 0.0);
+///         moved
+///     }
+///     fn project_step(&mut self, x: &mut [Vec3], order: &[u32], step: &Step<'_>) -> bool {
+///         for (i, &p) in x.iter().enumerate() {
+///             // Where the vertex was at the last projection, bit for bit ...
+///             let was = step.before(i, p);
+///             // ... and how far its block may have moved since (coordinates below 10 m).
+///             assert!(f64::from(p.distance(was)) <= step.motion(i / STEP_BLOCK, 10.0));
+///         }
+///         self.steps += 1;
+///         self.project(x, order)
+///     }
+/// }
+/// // A chain of 100 springs hanging from its first vertex, pulled down through the floor.
+/// let rest: Vec<Vec3> = (0..101).map(|i| Vec3::new(0.01 * i as f32, 0.0, 0.1)).collect();
+/// let edges: Vec<[u32; 2]> = (0..100).map(|i| [i, i + 1]).collect();
+/// let system = SpringSystem::new(&rest, &edges, &[50.0; 100], &[0.01; 100]).unwrap();
+/// let forces = vec![Vec3::new(0.0, 0.0, -0.5); 101];
+/// let mut pinned = vec![false; 101];
+/// pinned[0] = true;
+/// let loads = Loads { forces: Some(&forces), pinned: Some(&pinned), ..Default::default() };
+/// let mut floor = Floor { steps: 0 };
+/// let mut x = rest.clone();
+/// system
+///     .relax_projected(&mut x, &loads, &RelaxConfig::default(), Some(&mut floor))
+///     .unwrap();
+/// assert!(floor.steps > 0 && x.iter().all(|p| p.z >= 0.0));
+/// ```
 pub struct Step<'a> {
     d: &'a [Vec3],
     a: f32,
