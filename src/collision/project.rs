@@ -225,12 +225,12 @@ impl SkinCollision {
     /// one group that holds its internal index, so the groups touch disjoint state, and a
     /// resolution reads and writes only its own vertex's (the counters are sums). The groups'
     /// results are joined in group order, which is the solver's order.
-    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
     ///
     /// After a solver's step (`step`), a block of vertices whose bounded motion since its last
     /// test stays within its slack is skipped whole (its vertices would all pass their tests),
     /// each failing vertex's last position is the one the step gives back, and the last
     /// positions are not copied (the solve reports them at its end).
+    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
     fn pass_on(
         &mut self,
         par: Par<'_>,
@@ -471,6 +471,8 @@ const SKIP_TASK_GROUPS: usize = 8;
 /// makes a chunk.
 const BLOCK: usize = 64;
 const _: () = assert!(CHUNK.is_multiple_of(BLOCK));
+// A pass's blocks are the solver's step blocks.
+const _: () = assert!(BLOCK == crate::solver::STEP_BLOCK);
 
 /// How far a block whose every vertex passed its test may move and still pass (see
 /// [`failures`]).

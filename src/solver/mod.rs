@@ -281,6 +281,9 @@ impl Step<'_> {
     /// The position of internal vertex `i` before the step, bit for bit, given its position
     /// `x` after it: `x − a d` (one rounding per component), with the few floats that does
     /// not give back (noted by the step) put back.
+    ///
+    /// # Panics
+    /// If `i` is not a vertex of the solve.
     pub fn before(&self, i: usize, x: Vec3) -> Vec3 {
         let d = self.d[i];
         let mut p = Vec3::new(
@@ -301,13 +304,16 @@ impl Step<'_> {
     /// A bound, m, on how far any vertex of block `b` moved in the step, for vertices whose
     /// coordinates were at most `magnitude` (absolute value) before it: `|a| √3 max |d|`
     /// plus the rounding of `x + a d` (half an ulp of the result per component).
+    ///
+    /// # Panics
+    /// If `b` is not below [`blocks`](Self::blocks).
     pub fn motion(&self, b: usize, magnitude: f32) -> f64 {
         let along = f64::from(self.a.abs()) * f64::from(self.reach[b]);
         let rounding = (f64::from(magnitude) + along) * f64::from(f32::EPSILON);
         (along * (1.0 + 1e-6) + rounding) * 3f64.sqrt() * (1.0 + 1e-9)
     }
 
-    /// The number of blocks.
+    /// The number of blocks (the vertex count over [`STEP_BLOCK`], rounded up).
     pub fn blocks(&self) -> usize {
         self.reach.len()
     }
