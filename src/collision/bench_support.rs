@@ -42,9 +42,10 @@ use crate::solver::{ActiveContact, Projection, Step};
 pub struct Timed<'a, P: Projection + ?Sized> {
     /// The wrapped projection.
     pub inner: &'a mut P,
-    /// Wall time spent in [`Projection::project`], s.
+    /// Wall time spent in the projection ([`Projection::project`],
+    /// [`Projection::project_step`] and [`Projection::settled`]), s.
     pub seconds: f64,
-    /// Calls of [`Projection::project`].
+    /// Projection passes ([`Projection::project`] and [`Projection::project_step`]).
     pub calls: u64,
 }
 
@@ -57,15 +58,21 @@ impl<'a, P: Projection + ?Sized> Timed<'a, P> {
             calls: 0,
         }
     }
+
+    /// Runs `f` on the wrapped projection, its wall time added to `seconds` (and one call to
+    /// `calls` for a pass).
+    fn time<R>(&mut self, pass: bool, f: impl FnOnce(&mut P) -> R) -> R {
+        let start = Instant::now();
+        let r = f(self.inner);
+        self.seconds += start.elapsed().as_secs_f64();
+        self.calls += u64::from(pass);
+        r
+    }
 }
 
 impl<P: Projection + ?Sized> Projection for Timed<'_, P> {
     fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool {
-        let start = Instant::now();
-        let moved = self.inner.project(x, order);
-        self.seconds += start.elapsed().as_secs_f64();
-        self.calls += 1;
-        moved
+        self.time(true, |p| p.project(x, order))
     }
 
     fn active_contacts(&self) -> &[ActiveContact] {
@@ -81,17 +88,11 @@ impl<P: Projection + ?Sized> Projection for Timed<'_, P> {
     }
 
     fn project_step(&mut self, x: &mut [Vec3], order: &[u32], step: &Step<'_>) -> bool {
-        let start = Instant::now();
-        let moved = self.inner.project_step(x, order, step);
-        self.seconds += start.elapsed().as_secs_f64();
-        self.calls += 1;
-        moved
+        self.time(true, |p| p.project_step(x, order, step))
     }
 
     fn settled(&mut self, x: &[Vec3]) {
-        let start = Instant::now();
-        self.inner.settled(x);
-        self.seconds += start.elapsed().as_secs_f64();
+        self.time(false, |p| p.settled(x));
     }
 }
 
