@@ -703,4 +703,95 @@ mod tests {
             0b01010
         );
     }
+
+    /// The slack is sound: after every vertex of a block that passed moves by at most the
+    /// slack (measured exactly, in f64), in any direction, every vertex still passes its f32
+    /// test. The hardest moves are tried too: straight away from `at`, by the whole slack (the
+    /// vertex with the least clearance then ends within the slack's rounding margin of its
+    /// limit), far from the origin (coordinates up to 8 m against limits down to 0.1 mm).
+    #[test]
+    fn a_block_moved_within_its_slack_still_passes() {
+        let mut rng = Lcg(11);
+        let (mut tight, mut full) = (0, 0u32);
+        for round in 0..400 {
+            let centre = rng.point(if round % 2 == 0 { 8.0 } else { 0.5 });
+            let at: Vec<Vec3> = (0..BLOCK).map(|_| centre + rng.point(0.05)).collect();
+            // Limits over three decades in half the rounds, all alike in the others.
+            let one = 10f32.powf(-4.0 + 3.0 * rng.next());
+            let limit2: Vec<f32> = (0..BLOCK)
+                .map(|_| match round % 2 {
+                    0 => 10f32.powf(-4.0 + 3.0 * rng.next()).powi(2),
+                    _ => one * one,
+                })
+                .collect();
+            let xs: Vec<Vec3> = (0..BLOCK)
+                .map(|v| {
+                    let dir = (rng.point(1.0) + Vec3::splat(1e-3)).normalize();
+                    // Some clearances within 0.1 % of the limit, the rest anywhere inside.
+                    let reach = if v % 16 == round % 16 {
+                        0.999
+                    } else {
+                        0.999 * rng.next()
+                    };
+                    at[v] + dir * (limit2[v].sqrt() * reach)
+                })
+                .collect();
+            let (bits, clear) = failures(&xs, &at, &limit2, true);
+            assert_eq!((bits, clear), failures_portable(&xs, &at, &limit2));
+            let Some(clear) = clear else {
+                // A clearance rounded past its limit: this block would not be skipped.
+                assert_ne!(bits, 0);
+                continue;
+            };
+            assert!(clear.slack < limit2.iter().fold(f32::INFINITY, |a, l| a.min(l.sqrt())));
+            if clear.slack <= 0.0 {
+                continue;
+            }
+            tight += 1;
+            for trial in 0..8 {
+                let moved: Vec<Vec3> = xs
+                    .iter()
+                    .zip(&at)
+                    .map(|(x, a)| {
+                        let dir = if trial < 2 {
+                            // Straight away from `at`: the move that spends the most slack.
+                            (*x - *a).normalize_or(Vec3::X)
+                        } else {
+                            rng.point(1.0).normalize_or(Vec3::X)
+                        };
+                        let far = if trial % 2 == 0 { 1.0 } else { rng.next() };
+                        let mut scale = f64::from(clear.slack) * f64::from(far);
+                        // The moved position is an f32: shrink the move until its exact
+                        // length is within the slack.
+                        let ulp = f64::from(x.abs().max_element()) * f64::EPSILON * 2f64.powi(29);
+                        loop {
+                            let p = (x.as_dvec3() + dir.as_dvec3() * scale).as_vec3();
+                            let over = p.as_dvec3().distance(x.as_dvec3()) - f64::from(clear.slack);
+                            if over <= 0.0 {
+                                full += u32::from(over > -0.01 * f64::from(clear.slack));
+                                break p;
+                            }
+                            scale -= over + ulp;
+                            // A slack under the coordinates' ulp: no move fits.
+                            if scale.is_nan() || scale <= 0.0 {
+                                break *x;
+                            }
+                        }
+                    })
+                    .collect();
+                assert_eq!(
+                    failures(&moved, &at, &limit2, false).0,
+                    0,
+                    "round {round} trial {trial}: a vertex moved within the slack fails"
+                );
+                assert_eq!(failures_portable(&moved, &at, &limit2).0, 0);
+            }
+        }
+        // Most rounds were blocks that pass and have room to move, and many vertices moved by
+        // the whole slack (to 1 %).
+        assert!(
+            tight > 200 && full > 20_000,
+            "{tight} blocks, {full} whole moves"
+        );
+    }
 }
