@@ -1,6 +1,5 @@
-//! What CPU this process runs on, from CPUID: the vendor picks the relaxation kernels' default
-//! SIMD path, and the bench reports the model (machines differ between runs of the bench, and
-//! which path is fastest depends on the micro-architecture).
+//! What CPU this process runs on, from CPUID: the bench reports it (machines differ between
+//! runs of the bench, and which path is fastest depends on the micro-architecture).
 
 /// The CPU's vendor string (`GenuineIntel`, `AuthenticAMD`, ...), zeros off x86-64.
 pub(crate) fn vendor() -> [u8; 12] {

@@ -750,20 +750,21 @@ pub(crate) enum Isa {
     /// AVX2 and FMA (x86-64 only, detected at run time).
     Avx2,
     /// AVX2 for the f32 half (with the 32 registers of AVX-512VL), AVX-512F for the f64 half
-    /// (x86-64 only, detected at run time). The default on AMD CPUs that have it (Zen 4 on,
-    /// which run 512-bit operations on 256-bit units at full clock): there it executes fewer
-    /// instructions and runs faster (session 23, EPYC Zen 4: `relax_probe` 1.27-1.32x at 10k,
-    /// 1.19-1.23x at 100k and 1M). Elsewhere only on request (`DERMIS_SIMD=avx512`): on the
-    /// Sapphire-Rapids-class machine it was first measured on it ran slower than
-    /// [`Isa::Avx2`] (session 13: 0.91-0.93x at 10k, 0.95-0.97x at 100k).
+    /// (x86-64 only, detected at run time). The default wherever the CPU has AVX-512F and VL:
+    /// it executes fewer instructions, and it ran faster on both machines measured since
+    /// session 23: an EPYC Zen 4 (session 23, `relax_probe` 1.27-1.32x at 10k, 1.19-1.23x
+    /// at 100k and 1M) and an Intel Xeon with 2 MiB of L2 per core (session 26, alternated:
+    /// 1.02-1.03x at 10k on two threads, 1.08-1.12x on one, 1.05-1.10x at 100k and 1M).
+    /// On the project's first, Sapphire-Rapids-class machine it ran slower (session 13:
+    /// 0.91-0.93x at 10k): there `DERMIS_SIMD=avx2` is the faster choice.
     Avx512,
 }
 
 impl Isa {
-    /// The path for `n` vertices (gather offsets must fit in i32): the fastest the CPU has by
-    /// [`Isa::preferred`] (AVX-512 on AMD, else AVX2, else the portable one). The environment
-    /// variable `DERMIS_SIMD` (`scalar`, `avx2` or `avx512`) picks another, falling back to
-    /// the best the CPU has below it (for measurements: every path gives the same bits).
+    /// The path for `n` vertices (gather offsets must fit in i32): the fastest the CPU has
+    /// (AVX-512, else AVX2, else the portable one). The environment variable `DERMIS_SIMD`
+    /// (`scalar`, `avx2` or `avx512`) picks another, falling back to the best the CPU has
+    /// below it (for measurements: every path gives the same bits).
     pub fn detect(n: usize) -> Self {
         static BEST: std::sync::OnceLock<Isa> = std::sync::OnceLock::new();
         let best = *BEST.get_or_init(|| {
@@ -771,7 +772,7 @@ impl Isa {
                 Some("scalar") => Isa::Scalar,
                 Some("avx2") => Isa::Avx2,
                 Some("avx512") => Isa::Avx512,
-                _ => Isa::preferred(&crate::cpu::vendor()),
+                _ => Isa::Avx512,
             };
             Isa::available(0)
                 .into_iter()
@@ -779,18 +780,6 @@ impl Isa {
                 .unwrap_or(Isa::Scalar)
         });
         if n < (1 << 27) { best } else { Self::Scalar }
-    }
-
-    /// The fastest path, as measured, on a CPU of this vendor (CPUID's twelve-byte vendor
-    /// string) when it has every path: AVX-512 on AMD (`AuthenticAMD`), whose AVX-512 CPUs
-    /// (Zen 4 on) split 512-bit operations over 256-bit units at full clock, AVX2 on any
-    /// other (Intel's AVX-512 ran slower: see [`Isa::Avx512`]).
-    pub fn preferred(vendor: &[u8; 12]) -> Self {
-        if vendor == b"AuthenticAMD" {
-            Isa::Avx512
-        } else {
-            Isa::Avx2
-        }
     }
 
     /// Every path this CPU can run for `n` vertices, slowest first.
@@ -1892,10 +1881,10 @@ mod tests {
     }
 
     #[test]
-    fn the_default_path_is_the_one_measured_fastest_for_the_vendor() {
-        assert_eq!(Isa::preferred(b"AuthenticAMD"), Isa::Avx512);
-        assert_eq!(Isa::preferred(b"GenuineIntel"), Isa::Avx2);
-        assert_eq!(Isa::preferred(&[0; 12]), Isa::Avx2);
+    fn the_default_path_is_the_fastest_this_cpu_has() {
+        if std::env::var_os("DERMIS_SIMD").is_none() {
+            assert_eq!(Some(&Isa::detect(0)), Isa::available(0).last());
+        }
         // Whatever the default, it is a path this CPU runs.
         assert!(Isa::available(0).contains(&Isa::detect(0)));
     }
