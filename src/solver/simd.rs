@@ -1881,7 +1881,7 @@ mod tests {
     }
 
     #[test]
-    fn the_default_path_is_the_fastest_this_cpu_has() {
+    fn the_default_path_is_the_widest_this_cpu_has() {
         if std::env::var_os("DERMIS_SIMD").is_none() {
             assert_eq!(Some(&Isa::detect(0)), Isa::available(0).last());
         }
