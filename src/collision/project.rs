@@ -763,7 +763,7 @@ mod tests {
                         let mut scale = f64::from(clear.slack) * f64::from(far);
                         // The moved position is an f32: shrink the move until its exact
                         // length is within the slack.
-                        let ulp = f64::from(x.abs().max_element()) * f64::EPSILON * 2f64.powi(29);
+                        let ulp = f64::from(x.abs().max_element() * f32::EPSILON);
                         loop {
                             let p = (x.as_dvec3() + dir.as_dvec3() * scale).as_vec3();
                             let over = p.as_dvec3().distance(x.as_dvec3()) - f64::from(clear.slack);
@@ -773,7 +773,7 @@ mod tests {
                             }
                             scale -= over + ulp;
                             // A slack under the coordinates' ulp: no move fits.
-                            if scale.is_nan() || scale <= 0.0 {
+                            if scale <= 0.0 {
                                 break *x;
                             }
                         }
