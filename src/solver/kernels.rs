@@ -218,7 +218,7 @@ pub(crate) fn update_direction(
 }
 
 /// Floats an [`advance`] noted per chunk so that [`retreat`] can undo it bit for bit.
-pub(crate) type Spills = Vec<Vec<(u32, f32)>>;
+pub(crate) type Spills = Vec<Vec<simd::Spilled>>;
 
 /// The step `x += a d`, in place; `spills` (one list per chunk) receives what [`retreat`]
 /// needs to undo it exactly.

@@ -292,8 +292,8 @@ impl Step<'_> {
             d.z.mul_add(-self.a, x.z),
         );
         let (chunk, first) = (i / kernels::CHUNK, 3 * (i % kernels::CHUNK));
-        for &(f, old) in self.spills.get(chunk).map_or(&[][..], Vec::as_slice) {
-            let f = f as usize;
+        for &simd::Spilled { at, old } in self.spills.get(chunk).map_or(&[][..], Vec::as_slice) {
+            let f = at as usize;
             if (first..first + 3).contains(&f) {
                 p[f - first] = old;
             }

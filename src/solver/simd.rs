@@ -1476,12 +1476,23 @@ pub(crate) fn direction(
     }
 }
 
+/// A float a step overwrote that `x − a d` does not give back: its index among the chunk's
+/// floats and its value before the step.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Spilled {
+    /// Its index among the chunk's floats (`3 i + axis`).
+    pub at: u32,
+    /// Its value before the step.
+    pub old: f32,
+}
+
 /// `x += a d` over one chunk, noting in `spill` (cleared first) each float whose old value
 /// `x − a d` would not give back bit for bit (its index in the chunk's floats, and the value):
 /// with them, [`retreat`] restores the chunk exactly. Rounding makes `x + a d − a d` differ from
 /// `x` only where the sum crossed into a wider binade or the rounding tied: rarely.
 #[inline(always)]
-fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<(u32, f32)>) {
+fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<Spilled>) {
     assert!(x.len() == d.len());
     spill.clear();
     // Elementwise on the floats as stored.
@@ -1500,7 +1511,10 @@ fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut
                 let (old, undone) = (l.store(old), l.store(undone));
                 for k in 0..LANES {
                     if old[k].to_bits() != undone[k].to_bits() {
-                        spill.push(((f + k) as u32, old[k]));
+                        spill.push(Spilled {
+                            at: (f + k) as u32,
+                            old: old[k],
+                        });
                     }
                 }
             }
@@ -1513,7 +1527,70 @@ fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut
             let moved = (*dp.add(f)).mul_add(a, old);
             *xp.add(f) = moved;
             if (*dp.add(f)).mul_add(-a, moved).to_bits() != old.to_bits() {
-                spill.push((f as u32, old));
+                spill.push(Spilled { at: f as u32, old });
+            }
+        }
+    }
+}
+
+/// [`advance_chunk`] on the AVX-512 path: the same floats and the same spills, in the same
+/// order. A group of eight floats with spills compresses them (a mask compare, two compresses
+/// and one 64-byte store of the pairs) instead of testing its lanes one by one. A solve's
+/// first steps, large against the coordinates, spill often: up to one group in four of the
+/// bench's tube at its mid-clip pose solved from rest, where lane by lane the spills took
+/// half the step's time and unbalanced the threads' shares of the loops after it.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma,avx512f,avx512vl")]
+fn advance_chunk_avx512(x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<Spilled>) {
+    use std::arch::x86_64::*;
+    assert!(x.len() == d.len());
+    spill.clear();
+    let floats = 3 * x.len();
+    let full = floats / LANES * LANES;
+    let (xp, dp) = (x.as_mut_ptr().cast::<f32>(), d.as_ptr().cast::<f32>());
+    let (av, back) = (_mm256_set1_ps(a), _mm256_set1_ps(-a));
+    let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    // `[indices | values]` to `(index, value)` pairs.
+    let zip = _mm512_setr_epi32(0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13, 6, 14, 7, 15);
+    let mut len = 0usize;
+    let mut out = spill.as_mut_ptr();
+    let mut room = spill.capacity();
+    for f in (0..full).step_by(LANES) {
+        // SAFETY: eight floats from `f < full <= floats` are in bounds of `x` and `d`; the
+        // 64-byte store goes to the spill list's spare capacity (at least eight pairs, checked
+        // just before), and the length covers only the pairs written.
+        unsafe {
+            let (old, dv) = (_mm256_loadu_ps(xp.add(f)), _mm256_loadu_ps(dp.add(f)));
+            let moved = _mm256_fmadd_ps(dv, av, old);
+            _mm256_storeu_ps(xp.add(f), moved);
+            let undone = _mm256_fmadd_ps(dv, back, moved);
+            let differ =
+                _mm256_cmpneq_epi32_mask(_mm256_castps_si256(undone), _mm256_castps_si256(old));
+            if differ != 0 {
+                if room < len + LANES {
+                    spill.set_len(len);
+                    spill.reserve(LANES.max(len));
+                    (out, room) = (spill.as_mut_ptr(), spill.capacity());
+                }
+                let at = _mm256_add_epi32(lane, _mm256_set1_epi32(f as i32));
+                let at = _mm256_maskz_compress_epi32(differ, at);
+                let old = _mm256_maskz_compress_epi32(differ, _mm256_castps_si256(old));
+                let both = _mm512_inserti64x4::<1>(_mm512_castsi256_si512(at), old);
+                _mm512_storeu_si512(out.add(len).cast(), _mm512_permutexvar_epi32(zip, both));
+                len += differ.count_ones() as usize;
+            }
+        }
+    }
+    // SAFETY: the first `len` pairs were written above, within the capacity.
+    unsafe { spill.set_len(len) };
+    for f in full..floats {
+        // SAFETY: `f < floats`, in bounds of both.
+        unsafe {
+            let old = *xp.add(f);
+            let moved = (*dp.add(f)).mul_add(a, old);
+            *xp.add(f) = moved;
+            if (*dp.add(f)).mul_add(-a, moved).to_bits() != old.to_bits() {
+                spill.push(Spilled { at: f as u32, old });
             }
         }
     }
@@ -1522,7 +1599,7 @@ fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut
 /// Undoes [`advance_chunk`] with the same `d`, `a` and `spill`: `x − a d`, then the spilled
 /// floats put back.
 #[inline(always)]
-fn retreat_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &[(u32, f32)]) {
+fn retreat_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &[Spilled]) {
     assert!(x.len() == d.len());
     let floats = 3 * x.len();
     let full = floats / LANES * LANES;
@@ -1539,36 +1616,39 @@ fn retreat_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &[(u
         // SAFETY: `f < floats`, in bounds of both.
         unsafe { *xp.add(f) = (*dp.add(f)).mul_add(-a, *xp.add(f)) };
     }
-    for &(f, old) in spill {
-        let f = f as usize;
-        x[f / 3][f % 3] = old;
+    for &Spilled { at, old } in spill {
+        let at = at as usize;
+        x[at / 3][at % 3] = old;
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn advance_chunk_avx2(x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<(u32, f32)>) {
+fn advance_chunk_avx2(x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<Spilled>) {
     advance_chunk(avx2::Avx2, x, d, a, spill)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn retreat_chunk_avx2(x: &mut [Vec3], d: &[Vec3], a: f32, spill: &[(u32, f32)]) {
+fn retreat_chunk_avx2(x: &mut [Vec3], d: &[Vec3], a: f32, spill: &[Spilled]) {
     retreat_chunk(avx2::Avx2, x, d, a, spill)
 }
 
 /// `x += a d` over one chunk, with what [`retreat`] needs to undo it exactly in `spill`.
-pub(crate) fn advance(isa: Isa, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<(u32, f32)>) {
+pub(crate) fn advance(isa: Isa, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<Spilled>) {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only returned after the AVX2 check.
-        Isa::Avx2 | Isa::Avx512 => unsafe { advance_chunk_avx2(x, d, a, spill) },
+        Isa::Avx2 => unsafe { advance_chunk_avx2(x, d, a, spill) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Isa::Avx512` is only returned after the AVX-512F and VL checks.
+        Isa::Avx512 => unsafe { advance_chunk_avx512(x, d, a, spill) },
         _ => advance_chunk(Scalar, x, d, a, spill),
     }
 }
 
 /// Undoes [`advance`] (the same `d`, `a` and `spill`) bit for bit.
-pub(crate) fn retreat(isa: Isa, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &[(u32, f32)]) {
+pub(crate) fn retreat(isa: Isa, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &[Spilled]) {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: as in `advance`.
@@ -2141,6 +2221,20 @@ mod tests {
             })
             .collect();
         let a = 0.0371f32;
+        // Whole groups of eight floats that all spill (floats 16..24), and groups with three
+        // and with seven (40..43, 48..55): values just below 1 stepped across it, kept where
+        // the plain undo misses.
+        let spilling: Vec<(f32, f32)> = (0..4000)
+            .map(|k| (0.99 + k as f32 * 2.5e-6, 0.31f32))
+            .filter(|&(x, d)| d.mul_add(-a, d.mul_add(a, x)).to_bits() != x.to_bits())
+            .take(18)
+            .collect();
+        assert_eq!(spilling.len(), 18);
+        let (mut x0, mut d) = (x0, d);
+        for (&(xs, ds), f) in spilling.iter().zip((16..24).chain(40..43).chain(48..55)) {
+            x0[f / 3][f % 3] = xs;
+            d[f / 3][f % 3] = ds;
+        }
         let bits = |v: &[Vec3]| {
             v.iter()
                 .flat_map(|v| v.to_array())
@@ -2154,12 +2248,41 @@ mod tests {
             .map(|(x, d)| d.mul_add(Vec3::splat(-a), d.mul_add(Vec3::splat(a), *x)))
             .collect();
         assert_ne!(bits(&plain), bits(&x0));
+        // Exactly the floats the plain undo misses, in order, with their old values.
+        let floats = |v: &[Vec3]| v.iter().flat_map(|v| v.to_array()).collect::<Vec<_>>();
+        let missed: Vec<Spilled> = floats(&x0)
+            .into_iter()
+            .zip(floats(&plain))
+            .enumerate()
+            .filter(|(_, (old, undone))| old.to_bits() != undone.to_bits())
+            .map(|(at, (old, _))| Spilled { at: at as u32, old })
+            .collect();
+        // Groups of eight with several misses (the AVX-512 path packs them in one store),
+        // and more misses than a first allocation holds.
+        let groups = |s: &[Spilled]| s.iter().map(|s| s.at / 8).collect::<Vec<_>>();
+        let g = groups(&missed);
+        for (group, count) in [(2, 8), (5, 3), (6, 7)] {
+            assert!(g.iter().filter(|&&x| x == group).count() >= count);
+        }
+        assert!(missed.len() > 64);
         for isa in isas() {
             let mut x = x0.clone();
             let mut spill = Vec::new();
             advance(isa, &mut x, &d, a, &mut spill);
-            assert!(!spill.is_empty(), "{isa:?}");
+            assert_eq!(spill, missed, "{isa:?}");
             assert!(spill.len() < 3 * n / 10, "{isa:?}: {} spilled", spill.len());
+            // A list reused from another step is cleared first.
+            let mut again = x0.clone();
+            let mut reused = vec![
+                Spilled {
+                    at: 7,
+                    old: f32::NAN
+                };
+                5
+            ];
+            advance(isa, &mut again, &d, a, &mut reused);
+            assert_eq!(reused, missed, "{isa:?}");
+            assert_eq!(bits(&again), bits(&x), "{isa:?}");
             // What a projection learns from the step: each vertex's position before it, bit
             // for bit, and a bound on each block's motion.
             let spills = vec![spill];
