@@ -6,16 +6,27 @@
 //! of microseconds: rayon's fork-join hands each loop to a worker that has often gone to sleep
 //! in between, and the futex round trip to wake it costs as much as the loop. A [`Team`]
 //! instead keeps its helpers for the whole solve: they wait for the next loop spinning (and
-//! running any other rayon job meanwhile), and claim the loop's chunks from a shared counter,
-//! a quarter of those left at a time (every claim moves the counter between the cores).
-//! Code the solve calls on the leader's thread (its projection) finds the team through
-//! [`Par::current`] and runs its own parallel loops on it too.
+//! running any other rayon job meanwhile). Code the solve calls on the leader's thread (its
+//! projection) finds the team through [`Par::current`] and runs its own parallel loops on it
+//! too.
+//!
+//! Each member owns a share of every loop: the `m`-th of as many contiguous runs of its chunks
+//! as members, so the same vertices whatever the loop's chunk size. It claims its own chunks
+//! from the front of its share (a quarter of those left at a time), and when its share is done
+//! takes others' from the back of theirs: all of a share whose owner has not started on it,
+//! but from a share whose owner is at work only while more chunks are left in it than half the
+//! share (for a while: a member that stopped must not stall the loop). A chunk run on another core
+//! than in the loop before moves its vertices between the cores' caches, and the loop after
+//! reads them back: on session 27's machine a 10k-vertex force-gather chunk read after the
+//! other core's step ran ~1.7x as long, more than the few microseconds the end of a loop waits
+//! for the owner of a chunk instead of taking it.
 //!
 //! The results do not depend on who runs a chunk: each loop writes per-chunk outputs that are
 //! summed in chunk order afterwards, exactly as with rayon's iterators, so a solve is
-//! bit-identical for any number of threads. The leader never waits for a helper to arrive (it
-//! claims every chunk left over), only for the chunks a helper already claimed, so a team whose
-//! helpers are busy elsewhere (or a pool of one thread) still runs, on the leader alone.
+//! bit-identical for any number of threads. The leader never waits for a helper to arrive (a
+//! share nobody started on is anyone's), only for the chunks a helper already claimed and,
+//! briefly, for an owner at work on its share, so a team whose helpers are busy elsewhere (or a
+//! pool of one thread) still runs, on the leader alone.
 //!
 //! A chunk that panics, on either side, is rethrown by the leader once every claimed chunk of
 //! its loop is done (as a panic in a rayon loop reaches its caller): unwinding out of a helper
@@ -29,6 +40,7 @@ use std::marker::PhantomData;
 use std::panic::{AssertUnwindSafe, catch_unwind, resume_unwind};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicPtr, AtomicU64, AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
@@ -91,13 +103,22 @@ struct Job<'a> {
     f: &'a (dyn Fn(usize) + Sync),
 }
 
+/// One member's share of the current loop: its unclaimed chunks `front..back` (`back` in the
+/// high 32 bits, `front` in the low ones), on cache lines of its own.
+#[repr(align(128))]
+struct Share(AtomicU64);
+
 /// A leader and the helpers it spawned on rayon's pool for one solve (see the module
 /// documentation). The leader calls [`Team::run`] for each loop and [`Team::finish`] at the
-/// end; each helper calls [`Team::help`] once.
+/// end; helper `m` (from 1) calls [`Team::help`] once.
 pub(crate) struct Team {
-    /// The current loop's unclaimed chunks `front..back`: `back` in the high 32 bits, `front`
-    /// in the low ones.
-    state: AtomicU64,
+    /// Each member's share of the current loop, the leader's first: the `m`-th of as many
+    /// contiguous runs of chunks as members.
+    shares: Box<[Share]>,
+    /// The current loop's number of chunks.
+    chunks: AtomicUsize,
+    /// Loops run so far (only the leader writes it).
+    loops: AtomicU64,
     /// Chunks of the current loop finished by helpers.
     done: AtomicUsize,
     /// The current loop's [`Job`] (valid while any of its chunks is unclaimed or running).
@@ -109,20 +130,65 @@ pub(crate) struct Team {
     panicked: AtomicBool,
 }
 
-const LOW: u64 = 0xffff_ffff;
+/// A share's word: the loop's number (its low 16 bits) above `back` and `front` (24 bits each).
+const BACK_SHIFT: u32 = 24;
+const LOOP_SHIFT: u32 = 48;
+/// Chunks a loop may have.
+const MAX_CHUNKS: usize = 1 << BACK_SHIFT;
+const SPAN: u64 = MAX_CHUNKS as u64 - 1;
 
-/// Chunks one claim takes when `left` are unclaimed: a quarter of them, at least one. Every
-/// claim moves the loop's state between the cores' caches (~0.1 µs here); claiming a share
-/// at a time costs a loop of `n` chunks O(log n) claims instead of `n`, and the last chunks
-/// still go one by one, which keeps the threads' shares even.
+/// The first unclaimed chunk of a share's word.
+fn front(s: u64) -> u64 {
+    s & SPAN
+}
+
+/// The end of the unclaimed chunks of a share's word.
+fn back(s: u64) -> u64 {
+    (s >> BACK_SHIFT) & SPAN
+}
+
+/// How long a member waits for another member to claim the last chunk of its own share before
+/// it takes that chunk itself (a member that stopped, preempted or gone elsewhere, must not
+/// stall the loop): several times the longest chunk here (~10 µs).
+const PATIENCE: Duration = Duration::from_micros(50);
+
+/// A wait's end: none until the wait starts.
+struct Patience(Option<Instant>);
+
+impl Patience {
+    /// Whether the wait for another member may go on (starting it on the first call).
+    fn lasts(&mut self) -> bool {
+        let now = Instant::now();
+        now < *self.0.get_or_insert(now + PATIENCE)
+    }
+}
+
+/// Chunks one claim takes when `left` are unclaimed: a quarter of them, at least one. Claiming a
+/// quarter at a time costs a share of `n` chunks O(log n) claims instead of `n`, and the last
+/// chunks still go one by one, which keeps the members' loads even.
 fn batch(left: u64) -> u64 {
     (left / 4).max(1)
 }
 
+/// What a member found when it looked for chunks to run.
+enum Claim {
+    /// These chunks are now its to run.
+    Chunks(std::ops::Range<u64>),
+    /// Only chunks another member at work on its share will soon claim are left.
+    Wait,
+    /// Every chunk of the loop is claimed.
+    Empty,
+}
+
 impl Team {
-    pub fn new() -> Self {
+    /// A team of `members`: the leader and `members - 1` helpers.
+    pub fn new(members: usize) -> Self {
         Self {
-            state: AtomicU64::new(0),
+            shares: (0..members.max(1))
+                .map(|_| Share(AtomicU64::new(0)))
+                .collect(),
+            chunks: AtomicUsize::new(0),
+            loops: AtomicU64::new(0),
             done: AtomicUsize::new(0),
             job: AtomicPtr::new(std::ptr::null_mut()),
             finished: AtomicBool::new(false),
@@ -131,10 +197,81 @@ impl Team {
         }
     }
 
+    /// Member `me`'s next chunks: from the front of its own share, or else from the back of
+    /// another's of the same loop (see the module documentation). While `patient`, it leaves a
+    /// member at work on its share (one that claimed from it in this loop) as many unclaimed
+    /// chunks as half that share. The acquire of a successful claim pairs with [`publish`](Self::publish).
+    fn claim(&self, me: usize, patient: bool) -> Claim {
+        let own = &self.shares[me].0;
+        // Acquire: the loop's `chunks` is seen with its shares.
+        let mut s = own.load(Ordering::Acquire);
+        let loop_id = s >> LOOP_SHIFT;
+        while front(s) < back(s) {
+            let k = batch(back(s) - front(s));
+            match own.compare_exchange_weak(s, s + k, Ordering::Acquire, Ordering::Relaxed) {
+                Ok(_) => return Claim::Chunks(front(s)..front(s) + k),
+                Err(now) => s = now,
+            }
+        }
+        let members = self.shares.len();
+        let n = self.chunks.load(Ordering::Relaxed) as u64;
+        let mut wait = false;
+        for v in (1..members).map(|o| (me + o) % members) {
+            let share = &self.shares[v].0;
+            // Where its owner starts, and how many chunks it keeps while it is at work.
+            let start = v as u64 * n / members as u64;
+            let end = (v as u64 + 1) * n / members as u64;
+            let keep = (end - start).div_ceil(2).max(1);
+            let mut s = share.load(Ordering::Relaxed);
+            // Only a share of the loop this member's own share is from: a share of the next
+            // loop, published after this member read its own, is its owner's to start.
+            while s >> LOOP_SHIFT == loop_id && front(s) < back(s) {
+                let (front, back) = (front(s), back(s));
+                let spare = if patient && front > start {
+                    (back - front).saturating_sub(keep)
+                } else {
+                    back - front
+                };
+                if spare == 0 {
+                    wait = true;
+                    break;
+                }
+                let k = batch(spare);
+                match share.compare_exchange_weak(
+                    s,
+                    s - (k << BACK_SHIFT),
+                    Ordering::Acquire,
+                    Ordering::Relaxed,
+                ) {
+                    Ok(_) => return Claim::Chunks(back - k..back),
+                    Err(now) => s = now,
+                }
+            }
+        }
+        if wait { Claim::Wait } else { Claim::Empty }
+    }
+
+    /// Hands out a loop of `n` chunks: member `m` owns the `m`-th of the contiguous shares.
+    /// The release pairs with a claim's acquire: a member that claims a chunk of this loop sees
+    /// everything the leader wrote before (its job).
+    fn publish(&self, n: usize) {
+        self.chunks.store(n, Ordering::Relaxed);
+        let members = self.shares.len() as u64;
+        let loop_id = self.loops.fetch_add(1, Ordering::Relaxed) & 0xffff;
+        for (m, share) in self.shares.iter().enumerate().rev() {
+            let m = m as u64;
+            let (front, back) = (m * n as u64 / members, (m + 1) * n as u64 / members);
+            share.0.store(
+                (loop_id << LOOP_SHIFT) | (back << BACK_SHIFT) | front,
+                Ordering::Release,
+            );
+        }
+    }
+
     /// Runs `f(c)` for every chunk `c` in `0..n`, on the leader and whichever helpers are
     /// waiting; returns when all have finished. Only the leader may call it.
     pub fn run(&self, n: usize, f: &(dyn Fn(usize) + Sync)) {
-        assert!(n < LOW as usize, "too many chunks for one loop");
+        assert!(n < MAX_CHUNKS, "too many chunks for one loop");
         let job = Job { f };
         // Only the lifetime is erased: helpers dereference the pointer only after claiming a
         // chunk (below), and this function does not return before every claimed chunk is done,
@@ -142,10 +279,7 @@ impl Team {
         let ptr = (&raw const job).cast::<Job<'static>>().cast_mut();
         self.done.store(0, Ordering::Relaxed);
         self.job.store(ptr, Ordering::Relaxed);
-        // Publishes the loop (release): a helper that claims one of its chunks sees the job.
-        // The leader takes chunks from the front, the helpers from the back, so each thread
-        // mostly keeps the same vertices (in its own cache) from one loop to the next.
-        self.state.store((n as u64) << 32, Ordering::Release);
+        self.publish(n);
         // A chunk that asks for the current team runs its loops on rayon's pool: the team
         // runs one loop at a time.
         let _restore = Restore(CURRENT.replace(std::ptr::null()));
@@ -154,24 +288,23 @@ impl Team {
         // chunks of it, through `job`. The rest of the loop is claimed (and skipped), the
         // helpers' chunks awaited, and the first panic rethrown then.
         let mut panic = None;
-        let mut s = self.state.load(Ordering::Relaxed);
-        while (s & LOW) < (s >> 32) {
-            let (front, back) = (s & LOW, s >> 32);
-            let k = batch(back - front);
-            match self
-                .state
-                .compare_exchange_weak(s, s + k, Ordering::Relaxed, Ordering::Relaxed)
-            {
-                Ok(_) => {
-                    for c in front..front + k {
+        let mut patience = Patience(None);
+        let mut patient = true;
+        loop {
+            match self.claim(0, patient) {
+                Claim::Chunks(claimed) => {
+                    mine += (claimed.end - claimed.start) as usize;
+                    for c in claimed {
                         if panic.is_none() {
                             panic = catch_unwind(AssertUnwindSafe(|| f(c as usize))).err();
                         }
                     }
-                    mine += k as usize;
-                    s = self.state.load(Ordering::Relaxed);
                 }
-                Err(now) => s = now,
+                Claim::Wait => {
+                    patient = patience.lasts();
+                    spin_loop();
+                }
+                Claim::Empty => break,
             }
         }
         // Every chunk is claimed; wait for the ones the helpers run.
@@ -193,56 +326,52 @@ impl Team {
         }
     }
 
-    /// A helper's loop: claims chunks of the leader's loops until [`finish`](Self::finish).
-    /// While there is nothing to claim it spins, runs other rayon jobs, and yields its CPU.
+    /// Helper `me`'s loop (from 1): claims chunks of the leader's loops until
+    /// [`finish`](Self::finish). While there is nothing to claim it spins, runs other rayon
+    /// jobs, and yields its CPU.
     #[expect(
         unsafe_code,
         reason = "dereferences the leader's job, kept alive until this helper's chunk is done"
     )]
-    pub fn help(&self) {
-        let mut idle = 0u32;
+    pub fn help(&self, me: usize) {
+        let (mut idle, mut patience, mut patient) = (0u32, Patience(None), true);
         while !self.finished.load(Ordering::Acquire) {
-            let s = self.state.load(Ordering::Relaxed);
-            let (front, back) = (s & LOW, s >> 32);
-            // Claims the last unclaimed chunks; acquire pairs with the leader's release of the
-            // loop whose state this is.
-            let k = if front < back { batch(back - front) } else { 0 };
-            if k > 0
-                && self
-                    .state
-                    .compare_exchange_weak(
-                        s,
-                        ((back - k) << 32) | front,
-                        Ordering::Acquire,
-                        Ordering::Relaxed,
-                    )
-                    .is_ok()
-            {
-                // SAFETY: chunks `back - k..back` of the loop whose state this was are claimed
-                // and not done, so the leader is inside `run` for that loop and its job is
-                // alive; the pointer was stored before the loop was published (the acquire
-                // above).
-                let job = unsafe { &*self.job.load(Ordering::Relaxed) };
-                for c in back - k..back {
-                    // A panic is handed to the leader (see `run`): unwinding out of here would
-                    // leave the leader waiting for these chunks forever.
-                    if let Err(payload) = catch_unwind(AssertUnwindSafe(|| (job.f)(c as usize))) {
-                        self.panic
-                            .lock()
-                            .unwrap_or_else(|e| e.into_inner())
-                            .get_or_insert(payload);
-                        self.panicked.store(true, Ordering::Relaxed);
+            match self.claim(me, patient) {
+                Claim::Chunks(claimed) => {
+                    // SAFETY: the claimed chunks of the loop whose share this was are not
+                    // done, so the leader is inside `run` for that loop and its job is alive;
+                    // the pointer was stored before the loop was published (the claim's
+                    // acquire).
+                    let job = unsafe { &*self.job.load(Ordering::Relaxed) };
+                    let k = (claimed.end - claimed.start) as usize;
+                    for c in claimed {
+                        // A panic is handed to the leader (see `run`): unwinding out of here
+                        // would leave the leader waiting for these chunks forever.
+                        if let Err(payload) = catch_unwind(AssertUnwindSafe(|| (job.f)(c as usize)))
+                        {
+                            self.panic
+                                .lock()
+                                .unwrap_or_else(|e| e.into_inner())
+                                .get_or_insert(payload);
+                            self.panicked.store(true, Ordering::Relaxed);
+                        }
+                    }
+                    self.done.fetch_add(k, Ordering::Release);
+                    (idle, patience, patient) = (0, Patience(None), true);
+                }
+                Claim::Wait => {
+                    patient = patience.lasts();
+                    spin_loop();
+                }
+                Claim::Empty => {
+                    (patience, patient) = (Patience(None), true);
+                    idle += 1;
+                    if idle < 1 << 8 {
+                        spin_loop();
+                    } else if rayon::yield_now() != Some(rayon::Yield::Executed) && idle > 1 << 12 {
+                        std::thread::yield_now();
                     }
                 }
-                self.done.fetch_add(k as usize, Ordering::Release);
-                idle = 0;
-                continue;
-            }
-            idle += 1;
-            if idle < 1 << 8 {
-                spin_loop();
-            } else if rayon::yield_now() != Some(rayon::Yield::Executed) && idle > 1 << 12 {
-                std::thread::yield_now();
             }
         }
     }
@@ -264,10 +393,12 @@ impl Team {
                 self.0.finish();
             }
         }
-        let team = Team::new();
+        let helpers = max_helpers.min(rayon::current_num_threads() - 1);
+        let team = Team::new(1 + helpers);
         rayon::scope(|s| {
-            for _ in 0..max_helpers.min(rayon::current_num_threads() - 1) {
-                s.spawn(|_| team.help());
+            for me in 1..=helpers {
+                let team = &team;
+                s.spawn(move |_| team.help(me));
             }
             let _finish = Finish(&team);
             let _restore = Restore(CURRENT.replace(&raw const team));
@@ -365,6 +496,77 @@ mod tests {
         }
         // A team without helpers (a one-chunk solve's) runs everything on the leader.
         every_chunk_once(2, 0, 300);
+    }
+
+    /// The chunks a claim handed out, if any.
+    fn chunks(c: Claim) -> Option<std::ops::Range<u64>> {
+        match c {
+            Claim::Chunks(r) => Some(r),
+            Claim::Wait | Claim::Empty => None,
+        }
+    }
+
+    #[test]
+    fn members_claim_their_own_share_first_and_leave_one_at_work_half_of_its_share() {
+        let team = Team::new(2);
+        team.publish(10);
+        // Own shares (0..5, 5..10) from the front, a quarter of what is left at a time.
+        assert_eq!(chunks(team.claim(0, true)), Some(0..1));
+        assert_eq!(chunks(team.claim(1, true)), Some(5..6));
+        for c in 1..5 {
+            assert_eq!(chunks(team.claim(0, true)), Some(c..c + 1));
+        }
+        // The helper is at work with four chunks left: it keeps three (half its share), the
+        // leader takes the last one.
+        assert_eq!(chunks(team.claim(0, true)), Some(9..10));
+        // Then the leader waits while it is patient, and takes the rest when it is not.
+        assert!(matches!(team.claim(0, true), Claim::Wait));
+        assert_eq!(chunks(team.claim(0, false)), Some(8..9));
+        assert_eq!(chunks(team.claim(1, true)), Some(6..7));
+        assert_eq!(chunks(team.claim(1, true)), Some(7..8));
+        for me in 0..2 {
+            assert!(matches!(team.claim(me, true), Claim::Empty));
+        }
+        // A team of one claims everything, a quarter at a time.
+        let alone = Team::new(1);
+        alone.publish(9);
+        let got: Vec<_> = std::iter::from_fn(|| chunks(alone.claim(0, true))).collect();
+        assert_eq!(got, [0..2, 2..3, 3..4, 4..5, 5..6, 6..7, 7..8, 8..9]);
+    }
+
+    #[test]
+    fn a_share_nobody_started_on_is_anyone_s_and_another_loop_s_is_left_alone() {
+        let team = Team::new(3);
+        team.publish(12);
+        // Shares 0..4, 4..8, 8..12: the leader does its own, helper 1 starts on its own,
+        // helper 2 never comes.
+        for c in 0..4 {
+            assert_eq!(chunks(team.claim(0, true)), Some(c..c + 1));
+        }
+        assert_eq!(chunks(team.claim(1, true)), Some(4..5));
+        // Helper 1 keeps two of its three left; helper 2's share goes whole, from the back.
+        assert_eq!(chunks(team.claim(0, true)), Some(7..8));
+        assert_eq!(chunks(team.claim(0, true)), Some(11..12));
+        assert_eq!(chunks(team.claim(1, true)), Some(5..6));
+        assert_eq!(chunks(team.claim(1, true)), Some(6..7));
+        assert_eq!(chunks(team.claim(1, true)), Some(10..11));
+        // A member whose own share it last saw is from an earlier loop does not take chunks
+        // of the next one (their owners' to start).
+        team.publish(12);
+        let earlier = (team.shares[2].0.load(Ordering::Relaxed) >> LOOP_SHIFT) - 1;
+        let done = (earlier << LOOP_SHIFT) | (12 << BACK_SHIFT) | 12;
+        team.shares[2].0.store(done, Ordering::Relaxed);
+        assert!(matches!(team.claim(2, true), Claim::Empty));
+        assert_eq!(chunks(team.claim(1, true)), Some(4..5));
+        // Loop numbers wrap around (16 bits): a loop after the wrap is handed out as any.
+        team.loops.store(0xffff, Ordering::Relaxed);
+        team.publish(2);
+        team.publish(2);
+        assert_eq!(team.shares[0].0.load(Ordering::Relaxed) >> LOOP_SHIFT, 0);
+        // Shares 0..0, 0..1, 1..2.
+        assert_eq!(chunks(team.claim(1, true)), Some(0..1));
+        assert_eq!(chunks(team.claim(0, true)), Some(1..2));
+        assert!(matches!(team.claim(2, true), Claim::Empty));
     }
 
     #[test]
