@@ -1520,15 +1520,19 @@ fn advance_chunk<S: Lanes>(l: S, x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut
             }
         }
     }
-    for f in full..floats {
-        // SAFETY: `f < floats`, in bounds of both.
-        unsafe {
-            let old = *xp.add(f);
-            let moved = (*dp.add(f)).mul_add(a, old);
-            *xp.add(f) = moved;
-            if (*dp.add(f)).mul_add(-a, moved).to_bits() != old.to_bits() {
-                spill.push(Spilled { at: f as u32, old });
-            }
+    advance_tail(x, d, a, full, spill);
+}
+
+/// [`advance_chunk`]'s floats from `from` on, one by one (the tail after its groups of eight).
+#[inline(always)]
+fn advance_tail(x: &mut [Vec3], d: &[Vec3], a: f32, from: usize, spill: &mut Vec<Spilled>) {
+    for f in from..3 * x.len() {
+        let (i, axis) = (f / 3, f % 3);
+        let old = x[i][axis];
+        let moved = d[i][axis].mul_add(a, old);
+        x[i][axis] = moved;
+        if d[i][axis].mul_add(-a, moved).to_bits() != old.to_bits() {
+            spill.push(Spilled { at: f as u32, old });
         }
     }
 }
@@ -1583,17 +1587,7 @@ fn advance_chunk_avx512(x: &mut [Vec3], d: &[Vec3], a: f32, spill: &mut Vec<Spil
     }
     // SAFETY: the first `len` pairs were written above, within the capacity.
     unsafe { spill.set_len(len) };
-    for f in full..floats {
-        // SAFETY: `f < floats`, in bounds of both.
-        unsafe {
-            let old = *xp.add(f);
-            let moved = (*dp.add(f)).mul_add(a, old);
-            *xp.add(f) = moved;
-            if (*dp.add(f)).mul_add(-a, moved).to_bits() != old.to_bits() {
-                spill.push(Spilled { at: f as u32, old });
-            }
-        }
-    }
+    advance_tail(x, d, a, full, spill);
 }
 
 /// Undoes [`advance_chunk`] with the same `d`, `a` and `spill`: `x − a d`, then the spilled

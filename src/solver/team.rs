@@ -103,8 +103,8 @@ struct Job<'a> {
     f: &'a (dyn Fn(usize) + Sync),
 }
 
-/// One member's share of the current loop: its unclaimed chunks `front..back` (`back` in the
-/// high 32 bits, `front` in the low ones), on cache lines of its own.
+/// One member's share of the current loop, on cache lines of its own: the loop's number and
+/// the share's unclaimed chunks `front..back` in one word (see [`LOOP_SHIFT`]).
 #[repr(align(128))]
 struct Share(AtomicU64);
 
@@ -130,8 +130,9 @@ pub(crate) struct Team {
     panicked: AtomicBool,
 }
 
-/// A share's word: the loop's number (its low 16 bits) above `back` and `front` (24 bits each).
+/// Where `back` starts in a share's word, above `front` (24 bits each).
 const BACK_SHIFT: u32 = 24;
+/// Where the loop's number (its low 16 bits) starts in a share's word, above `back`.
 const LOOP_SHIFT: u32 = 48;
 /// Chunks a loop may have.
 const MAX_CHUNKS: usize = 1 << BACK_SHIFT;
