@@ -148,19 +148,31 @@ fn back(s: u64) -> u64 {
     (s >> BACK_SHIFT) & SPAN
 }
 
-/// How long a member waits for another member to claim the last chunk of its own share before
-/// it takes that chunk itself (a member that stopped, preempted or gone elsewhere, must not
-/// stall the loop): several times the longest chunk here (~10 µs).
+/// How long a member waits for another member at work on its share to claim the chunks it
+/// keeps before it takes them itself (a member that stopped, preempted or gone elsewhere, must
+/// not stall the loop): several times the longest chunk here (~10 µs).
 const PATIENCE: Duration = Duration::from_micros(50);
 
-/// A wait's end: none until the wait starts.
-struct Patience(Option<Instant>);
+/// A member's wait for the chunks another member keeps: patient until [`PATIENCE`] has passed
+/// since the wait began.
+#[derive(Default)]
+struct Patience {
+    /// When the wait ends (none until it begins).
+    until: Option<Instant>,
+    /// Whether it has ended.
+    over: bool,
+}
 
 impl Patience {
-    /// Whether the wait for another member may go on (starting it on the first call).
-    fn lasts(&mut self) -> bool {
+    /// Whether the member still leaves others the chunks they keep.
+    fn patient(&self) -> bool {
+        !self.over
+    }
+
+    /// Notes one more turn of waiting (the first one begins the wait).
+    fn waited(&mut self) {
         let now = Instant::now();
-        now < *self.0.get_or_insert(now + PATIENCE)
+        self.over = now >= *self.until.get_or_insert(now + PATIENCE);
     }
 }
 
@@ -289,10 +301,9 @@ impl Team {
         // chunks of it, through `job`. The rest of the loop is claimed (and skipped), the
         // helpers' chunks awaited, and the first panic rethrown then.
         let mut panic = None;
-        let mut patience = Patience(None);
-        let mut patient = true;
+        let mut patience = Patience::default();
         loop {
-            match self.claim(0, patient) {
+            match self.claim(0, patience.patient()) {
                 Claim::Chunks(claimed) => {
                     mine += (claimed.end - claimed.start) as usize;
                     for c in claimed {
@@ -302,7 +313,7 @@ impl Team {
                     }
                 }
                 Claim::Wait => {
-                    patient = patience.lasts();
+                    patience.waited();
                     spin_loop();
                 }
                 Claim::Empty => break,
@@ -335,9 +346,9 @@ impl Team {
         reason = "dereferences the leader's job, kept alive until this helper's chunk is done"
     )]
     pub fn help(&self, me: usize) {
-        let (mut idle, mut patience, mut patient) = (0u32, Patience(None), true);
+        let (mut idle, mut patience) = (0u32, Patience::default());
         while !self.finished.load(Ordering::Acquire) {
-            match self.claim(me, patient) {
+            match self.claim(me, patience.patient()) {
                 Claim::Chunks(claimed) => {
                     // SAFETY: the claimed chunks of the loop whose share this was are not
                     // done, so the leader is inside `run` for that loop and its job is alive;
@@ -358,14 +369,14 @@ impl Team {
                         }
                     }
                     self.done.fetch_add(k, Ordering::Release);
-                    (idle, patience, patient) = (0, Patience(None), true);
+                    (idle, patience) = (0, Patience::default());
                 }
                 Claim::Wait => {
-                    patient = patience.lasts();
+                    patience.waited();
                     spin_loop();
                 }
                 Claim::Empty => {
-                    (patience, patient) = (Patience(None), true);
+                    patience = Patience::default();
                     idle += 1;
                     if idle < 1 << 8 {
                         spin_loop();
