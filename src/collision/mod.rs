@@ -1266,7 +1266,7 @@ impl SkinCollision {
         let moved = done.counters.moved > 0;
         self.record(done.counters, done.unresolved);
         let stick = self.config.friction >= 1.0;
-        for (i, o) in touching {
+        for &(i, o) in &touching {
             let state = &self.states[o as usize];
             for t in state.touches.iter().take_while(|t| t.collider != NONE) {
                 self.active.push(ActiveContact {
@@ -1277,6 +1277,8 @@ impl SkinCollision {
                 self.active_owner.push((o, t.collider));
             }
         }
+        // The list's buffer serves the next pass.
+        self.view.touching = touching;
         moved
     }
 }

@@ -70,6 +70,14 @@ pub(super) struct View {
     holders: Vec<Holder>,
     /// The vertices (internal indices) the last pass moved.
     pub(super) moved: Vec<u32>,
+    /// Buffers kept from pass to pass, so that a pass does not grow its lists from empty
+    /// (reallocations were ~5 % of a 10k tube's passes' instructions, session 28): each
+    /// group's results...
+    outs: Vec<GroupPass>,
+    /// ... the holds of the pass before the last (the next pass's list)...
+    spare_holders: Vec<Holder>,
+    /// ... and the touching vertices' list, handed back by [`SkinCollision::project_after`].
+    pub(super) touching: Vec<(u32, u32)>,
 }
 
 /// A vertex held on a face: where it was resolved, its contact normal, the range of its
@@ -138,7 +146,7 @@ fn test_of(r: &Reach, travel: f64) -> (Vec3, f32) {
 }
 
 /// What one group of a pass did (see `pass_on`).
-#[derive(Default)]
+#[derive(Debug, Clone, Default)]
 struct GroupPass {
     counters: Counters,
     /// Vertices whose skip test passed.
@@ -155,6 +163,18 @@ struct GroupPass {
     touching: Vec<(u32, u32)>,
     /// The holds after the pass, by internal index.
     holders: Vec<Holder>,
+}
+
+impl GroupPass {
+    /// Empty again, its lists' capacity kept.
+    fn clear(&mut self) {
+        self.counters = Counters::default();
+        (self.skipped, self.in_blocks, self.kept) = (0, 0, 0);
+        self.moved.clear();
+        self.unresolved.clear();
+        self.touching.clear();
+        self.holders.clear();
+    }
 }
 
 impl SkinCollision {
@@ -250,8 +270,10 @@ impl SkinCollision {
             face_holds: self.face_holds,
         };
         let groups = n.div_ceil(GROUP);
-        let mut outs: Vec<GroupPass> = (0..groups).map(|_| GroupPass::default()).collect();
         let view = &mut self.view;
+        let mut outs = std::mem::take(&mut view.outs);
+        outs.resize_with(groups, GroupPass::default);
+        outs.iter_mut().for_each(GroupPass::clear);
         {
             let (xs, prevs) = (Chunked::new(x, GROUP), Chunked::new(&mut view.prev, GROUP));
             let (ats, limits) = (
@@ -377,9 +399,11 @@ impl SkinCollision {
         }
         // The groups' results in group order: the solver's order.
         let mut pass = ChunkPass::default();
-        let mut touching = Vec::new();
-        let mut holders = Vec::with_capacity(view.holders.len());
-        for out in outs {
+        let mut touching = std::mem::take(&mut view.touching);
+        touching.clear();
+        let mut holders = std::mem::take(&mut view.spare_holders);
+        holders.clear();
+        for out in &outs {
             let c = &mut pass.counters;
             c.add(&out.counters);
             c.skipped_vertices += out.skipped + out.kept;
@@ -387,15 +411,16 @@ impl SkinCollision {
             c.skipped_bound += out.skipped * nc as u64;
             c.contacts += out.kept;
             c.moved += out.moved.len() as u64;
-            view.moved.extend(out.moved);
-            pass.unresolved.extend(out.unresolved);
-            touching.extend(out.touching);
-            holders.extend(out.holders);
+            view.moved.extend_from_slice(&out.moved);
+            pass.unresolved.extend_from_slice(&out.unresolved);
+            touching.extend_from_slice(&out.touching);
+            holders.extend_from_slice(&out.holders);
         }
+        view.outs = outs;
         // Rare: a sort only when some vertex stayed unresolved.
         pass.unresolved.sort_unstable();
         view.prev_stale |= step.is_some();
-        view.holders = holders;
+        view.spare_holders = std::mem::replace(&mut view.holders, holders);
         (pass, touching)
     }
 
