@@ -69,7 +69,7 @@ impl Patch {
     /// built, plus the rounding allowance of the distances compared against it; `None`
     /// without a patch.
     #[inline]
-    fn slack(&self, p: Vec3, travel: f64) -> Option<f32> {
+    pub(crate) fn slack(&self, p: Vec3, travel: f64) -> Option<f32> {
         if self.len == 0 {
             return None;
         }

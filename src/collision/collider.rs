@@ -605,6 +605,23 @@ impl ColliderMesh {
         }
     }
 
+    /// The [`Prism`] of the rest-frame point `p` over face `t` of this mesh, from the patch
+    /// that just certified `t` as its closest triangle (`slack`: that certificate's, see
+    /// `Patch::slack`), its tests allowed `tau`; `None` for a primitive or a degenerate face.
+    pub(crate) fn face_prism(
+        &self,
+        p: Vec3,
+        t: u32,
+        patch: &Patch,
+        slack: f32,
+        tau: f32,
+    ) -> Option<Prism> {
+        match &self.shape {
+            Shape::Mesh(m) => m.face_prism(p, t, patch, slack, tau),
+            _ => None,
+        }
+    }
+
     /// The current rest-frame position of a surface point given by `part` and `coords` (see
     /// [`SurfaceProjection`]).
     pub(crate) fn local_surface_point(&self, part: u32, coords: Vec3) -> Vec3 {
@@ -641,7 +658,58 @@ impl ColliderMesh {
     }
 }
 
+/// How far a point above a mesh face may move and keep that face its closest triangle by a
+/// margin, from where the face lies among its patch's other triangles (see `hold_of` in the
+/// collision module): each triangle of the patch is either *beyond* one of the face's edges
+/// (its corners on the far side of that edge's line, seen along the face's normal, and none
+/// above the face's plane: a convex neighbour across an edge or most of those around a
+/// corner) or among the *rest*.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Prism {
+    /// The point's distance to the nearest of the face's edge lines, in the face's plane, m.
+    pub edge: f32,
+    /// How much farther than the face the rest of the triangles are, the ones outside the
+    /// patch included (by its gap), m.
+    pub rest: f32,
+}
+
 impl MeshShape {
+    /// See [`ColliderMesh::face_prism`].
+    fn face_prism(&self, p: Vec3, t: u32, patch: &Patch, slack: f32, tau: f32) -> Option<Prism> {
+        let [a, b, c] = self.corners(t);
+        let n = self.face_normal(t);
+        // Each edge's point and its outward normal in the face's plane.
+        let mut edges = [(Vec3::ZERO, Vec3::ZERO); 3];
+        for (e, (p0, p1, other)) in edges.iter_mut().zip([(a, b, c), (b, c, a), (c, a, b)]) {
+            let m = (p1 - p0).cross(n).normalize_or_zero();
+            *e = (p0, if m.dot(other - p0) > 0.0 { -m } else { m });
+        }
+        if n == Vec3::ZERO || edges.iter().any(|e| e.1 == Vec3::ZERO) {
+            return None;
+        }
+        let edge = edges
+            .iter()
+            .map(|&(p0, m)| -m.dot(p - p0))
+            .fold(f32::INFINITY, f32::min);
+        let own = self.triangle_distance(t, p);
+        let mut rest = patch.gap - slack - own;
+        for &u in &patch.tris[..patch.len as usize] {
+            if u == t {
+                continue;
+            }
+            let corners = self.corners(u);
+            let below = corners.iter().all(|&q| n.dot(q - a) <= tau);
+            let beyond = below
+                && edges
+                    .iter()
+                    .any(|&(p0, m)| corners.iter().all(|&q| m.dot(q - p0) >= -tau));
+            if !beyond {
+                rest = rest.min(self.triangle_distance(u, p) - own);
+            }
+        }
+        Some(Prism { edge, rest })
+    }
+
     /// The corners of triangle `t` now.
     #[inline]
     fn corners(&self, t: u32) -> [Vec3; 3] {

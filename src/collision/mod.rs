@@ -25,7 +25,7 @@ use thiserror::Error;
 use crate::mesh::TopologyError;
 use crate::solver::{ActiveContact, Projection, Step};
 use cache::{Answer, Patch, Slot};
-use collider::NONE;
+use collider::{NONE, Prism};
 use plan::{Batch, LANES, Motion};
 
 /// Vertices per parallel work item (fixed, so results never depend on the thread count).
@@ -1386,8 +1386,9 @@ impl Ctx<'_> {
         let mut touching = Contact::NONE;
         let mut unresolved = false;
         // The last round's touch inside a mesh face, certified: (collider, signed distance,
-        // largest rest-frame coordinate, margin of its triangle over every other).
-        let mut face: Option<(usize, f32, f32, f32)> = None;
+        // largest rest-frame coordinate, margin of its triangle over every other, rest-frame
+        // point, triangle).
+        let mut face: Option<(usize, f32, f32, f32, Vec3, u32)> = None;
         // Rounds 0..max_rounds push; one more round only checks.
         for round in 0..=cfg.max_rounds {
             let check_only = round == cfg.max_rounds;
@@ -1443,8 +1444,10 @@ impl Ctx<'_> {
                     };
                     touches += 1;
                     // Inside a face (no barycentric coordinate zero) the normal is the face's.
-                    face = (certified && proj.coords.min_element() > 0.0)
-                        .then(|| (c, s, local.abs().max_element(), patches[c].margin));
+                    face = (certified && proj.coords.min_element() > 0.0).then(|| {
+                        let largest = local.abs().max_element();
+                        (c, s, largest, patches[c].margin, local, proj.part)
+                    });
                 }
                 if state.anchor.collider == NONE {
                     state.anchor = contact;
@@ -1513,7 +1516,7 @@ impl Ctx<'_> {
         // covers the f32 distances of the skip test and the bound's own rounding to f32.
         let reserve = safe - band as f64 - 1e-5 * (p.abs().max_element() as f64 + safe) - 1e-9;
         let hold = match face {
-            Some((c, s, local, margin))
+            Some((c, s, largest, margin, local, part))
                 if self.face_holds
                     && cfg.friction == 0.0
                     && !unresolved
@@ -1521,8 +1524,12 @@ impl Ctx<'_> {
                     && state.touches[0].collider == c as u32
                     && state.touches[1].collider == NONE =>
             {
-                let scale = p.abs().max_element().max(local) + s.abs();
-                hold_of(scale, (h, tol, band), s, margin, others)
+                let scale = p.abs().max_element().max(largest) + s.abs();
+                let patch = &patches[c];
+                let prism = patch.slack(local, self.travel[c]).and_then(|slack| {
+                    self.colliders[c].face_prism(local, part, patch, slack, PRISM_TAU * scale)
+                });
+                hold_of(scale, (h, tol, band), s, (margin, prism), others)
             }
             _ => None,
         };
@@ -1544,25 +1551,68 @@ impl Ctx<'_> {
 }
 
 /// The hold of a vertex touching one mesh collider inside a face, no collider moving: the
-/// radius within which its triangle stays the closest by half the patch `margin` (so it
-/// projects inside that face, since any edge or corner of a closed mesh is shared with a
-/// triangle as close, and its normal is the contact's) and every other collider (lower bound
-/// `others`) beyond the band `band`; and the range of `n · (p − at)` (`n` the face normal) over
-/// which its signed distance, `s` now, stays within the tolerance `tol` of the thickness `h`
-/// (there the distance to the face's plane, linear along `n`): no push, no lift, still
-/// touching. `None`: no hold. Each bound less its rounding allowance relative to `scale` (the
-/// largest coordinate, world or rest frame, plus the distance): the f32 distances a few ulps
-/// (allowed 1e-6 each), the tie rounding of the patch answers (1e-5), the reserve's own
-/// (1e-5), and the normal's rounding along the step (1e-5 of the radius).
+/// radius within which its triangle stays the closest (so it projects inside that face, and its
+/// normal is the contact's) and every other collider (lower bound `others`) stays beyond the
+/// band `band`; and the range of `n · (p − at)` (`n` the face normal) over which its signed
+/// distance, `s` now, stays within the tolerance `tol` of the thickness `h` (there the
+/// distance to the face's plane, linear along `n`): no push, no lift, still touching. `None`:
+/// no hold.
+///
+/// The triangle stays the closest within the larger of two radii (each sound alone):
+/// - half its `margin` over every other triangle (the first of `margins`): any edge or corner
+///   of a closed mesh is shared with a triangle as close, so it also projects inside the face;
+/// - with a [`Prism`] (the second of `margins`), the smaller of half its margin over the
+///   triangles not beyond one of the face's edges, and its clearance from those edges less
+///   what keeps a triangle beyond an edge farther than the face: at height `s′ ≤ h + tol`
+///   above the face and `e′` inside an edge, a triangle beyond that edge and below the face's
+///   plane is at least `√(e′² + s′²)` away, more than `s′` by over the rounding allowance once
+///   `e′² > 2 (h + tol) δ + δ²`. Over a thick skin the first is tiny (`e′² / 2s′` for a
+///   neighbour across an edge `e′` away: ~1 µm on the bench's muscle, less than a solver step
+///   moves a sliding vertex) and the second is most of the distance to the face's edges.
+///
+/// Each bound less its rounding allowance relative to `scale` (the largest coordinate, world
+/// or rest frame, plus the distance): the f32 distances a few ulps (allowed 1e-6 each), the tie
+/// rounding of the patch answers (1e-5), the reserve's own (1e-5), the prism's corner tests
+/// ([`PRISM_TAU`]), and the normal's rounding along the step (1e-5 of the radius).
 fn hold_of(
     scale: f32,
     (h, tol, band): (f32, f32, f32),
     s: f32,
-    margin: f32,
+    (margin, prism): (f32, Option<Prism>),
     others: f64,
 ) -> Option<(f32, [f32; 2])> {
     let scale = f64::from(scale);
-    let closest = 0.5 * (f64::from(margin) - 4e-6 * scale);
+    let delta = 4e-6 * scale;
+    let closest = 0.5 * (f64::from(margin) - delta);
+    let closest = match prism {
+        Some(prism) => {
+            let tau = f64::from(PRISM_TAU) * scale;
+            let dt = delta + tau;
+            let top = f64::from(h + tol);
+            let inside = f64::from(prism.edge) - tau - (2.0 * top * dt + dt * dt).sqrt();
+            let rest = 0.5 * (f64::from(prism.rest) - delta);
+            {
+                use std::sync::atomic::Ordering::Relaxed;
+                PSTAT2[0].fetch_add(1, Relaxed);
+                PSTAT2[1].fetch_add((rest < inside) as u64, Relaxed);
+                PSTAT2[2].fetch_add((inside.max(0.0) * 1e9) as u64, Relaxed);
+                PSTAT2[3].fetch_add((rest.max(0.0) * 1e9) as u64, Relaxed);
+                PSTAT2[4].fetch_add((f64::from(prism.edge).max(0.0) * 1e9) as u64, Relaxed);
+                PSTAT2[5].fetch_add((closest.max(0.0) * 1e9) as u64, Relaxed);
+                PSTAT2[6].fetch_add(
+                    (f64::from(prism.rest) <= f64::from(margin) * 1.0001) as u64,
+                    Relaxed,
+                );
+            }
+            // A NaN anywhere leaves the first radius (`max` skips a NaN).
+            if inside.is_nan() || rest.is_nan() {
+                closest
+            } else {
+                closest.max(inside.min(rest))
+            }
+        }
+        None => closest,
+    };
     // No other collider: nothing to clear.
     let clear = if others.is_finite() {
         others - f64::from(band) - 1e-5 * (scale + others.abs()) - 1e-9
@@ -1579,6 +1629,14 @@ fn hold_of(
     let hi = f64::from(h + tol) - f64::from(s) - allow;
     (lo <= 0.0 && hi >= 0.0).then_some((radius as f32, [lo as f32, hi as f32]))
 }
+
+/// Scratch.
+pub static PSTAT2: [std::sync::atomic::AtomicU64; 8] =
+    [const { std::sync::atomic::AtomicU64::new(0) }; 8];
+
+/// The allowance of a [`Prism`]'s corner and edge tests, relative to the coordinates'
+/// magnitude: far over their f32 rounding (a few 1e-7).
+const PRISM_TAU: f32 = 5e-7;
 
 /// The substeps a largest reaching motion `motion` asks for, before the clamp to
 /// `1..=max_substeps`: `⌈motion / step⌉` (f32), `step` half the thinnest skin (none: 1).
