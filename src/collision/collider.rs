@@ -607,17 +607,19 @@ impl ColliderMesh {
 
     /// The [`Prism`] of the rest-frame point `p` over face `t` of this mesh, from the patch
     /// that just certified `t` as its closest triangle (`slack`: that certificate's, see
-    /// `Patch::slack`), its tests allowed `tau`; `None` for a primitive or a degenerate face.
+    /// `Patch::slack`); `allowance`: the corner tests' `τ`, the clearance from the face's
+    /// edges a hold needs, and the distances' rounding `δ` (see `hold_of` in the collision
+    /// module). `None` for a primitive, a degenerate face, or a point too near an edge.
     pub(crate) fn face_prism(
         &self,
         p: Vec3,
         t: u32,
         patch: &Patch,
         slack: f32,
-        tau: f32,
+        allowance: (f32, f32, f32),
     ) -> Option<Prism> {
         match &self.shape {
-            Shape::Mesh(m) => m.face_prism(p, t, patch, slack, tau),
+            Shape::Mesh(m) => m.face_prism(p, t, patch, slack, allowance),
             _ => None,
         }
     }
@@ -666,16 +668,25 @@ impl ColliderMesh {
 /// corner) or among the *rest*.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Prism {
-    /// The point's distance to the nearest of the face's edge lines, in the face's plane, m.
-    pub edge: f32,
+    /// The point's distance to the nearest of the face's edge lines, in the face's plane, less
+    /// what keeps the triangles beyond an edge farther than the face, m.
+    pub inside: f32,
     /// How much farther than the face the rest of the triangles are, the ones outside the
-    /// patch included (by its gap), m.
+    /// patch included (by its gap), at least, m; those too far to matter (over
+    /// `2 inside + δ`) left out.
     pub rest: f32,
 }
 
 impl MeshShape {
     /// See [`ColliderMesh::face_prism`].
-    fn face_prism(&self, p: Vec3, t: u32, patch: &Patch, slack: f32, tau: f32) -> Option<Prism> {
+    fn face_prism(
+        &self,
+        p: Vec3,
+        t: u32,
+        patch: &Patch,
+        slack: f32,
+        (tau, need, delta): (f32, f32, f32),
+    ) -> Option<Prism> {
         let [a, b, c] = self.corners(t);
         let n = self.face_normal(t);
         // Each edge's point and its outward normal in the face's plane.
@@ -687,14 +698,22 @@ impl MeshShape {
         if n == Vec3::ZERO || edges.iter().any(|e| e.1 == Vec3::ZERO) {
             return None;
         }
-        let edge = edges
+        let inside = edges
             .iter()
             .map(|&(p0, m)| -m.dot(p - p0))
-            .fold(f32::INFINITY, f32::min);
+            .fold(f32::INFINITY, f32::min)
+            - need;
+        // Most vertices the skin presses onto a mesh sit near an edge: no prism (a NaN too).
+        if inside.is_nan() || inside <= 0.0 {
+            return None;
+        }
         let own = self.triangle_distance(t, p);
         let mut rest = patch.gap - slack - own;
-        for &u in &patch.tris[..patch.len as usize] {
-            if u == t {
+        // A triangle whose bound alone keeps it this much farther than the face cannot make the
+        // radius shorter than `inside` (`hold_of` takes half of `rest − δ`): left out.
+        let enough = 2.0 * inside + delta;
+        for (&u, &dist) in patch.tris.iter().zip(&patch.dist).take(patch.len as usize) {
+            if u == t || dist - slack - own >= enough {
                 continue;
             }
             let corners = self.corners(u);
@@ -707,7 +726,7 @@ impl MeshShape {
                 rest = rest.min(self.triangle_distance(u, p) - own);
             }
         }
-        Some(Prism { edge, rest })
+        Some(Prism { inside, rest })
     }
 
     /// The corners of triangle `t` now.

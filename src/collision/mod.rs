@@ -1527,7 +1527,9 @@ impl Ctx<'_> {
                 let scale = p.abs().max_element().max(largest) + s.abs();
                 let patch = &patches[c];
                 let prism = patch.slack(local, self.travel[c]).and_then(|slack| {
-                    self.colliders[c].face_prism(local, part, patch, slack, PRISM_TAU * scale)
+                    let tau = (PRISM_TAU * f64::from(scale)) as f32;
+                    let (need, delta) = prism_allowance(scale, h + tol);
+                    self.colliders[c].face_prism(local, part, patch, slack, (tau, need, delta))
                 });
                 hold_of(scale, (h, tol, band), s, (margin, prism), others)
             }
@@ -1563,10 +1565,10 @@ impl Ctx<'_> {
 ///   of a closed mesh is shared with a triangle as close, so it also projects inside the face;
 /// - with a [`Prism`] (the second of `margins`), the smaller of half its margin over the
 ///   triangles not beyond one of the face's edges, and its clearance from those edges less
-///   what keeps a triangle beyond an edge farther than the face: at height `s′ ≤ h + tol`
-///   above the face and `e′` inside an edge, a triangle beyond that edge and below the face's
-///   plane is at least `√(e′² + s′²)` away, more than `s′` by over the rounding allowance once
-///   `e′² > 2 (h + tol) δ + δ²`. Over a thick skin the first is tiny (`e′² / 2s′` for a
+///   what keeps a triangle beyond an edge farther than the face (`prism_allowance`): at height
+///   `s′ ≤ h + tol` above the face and `e′` inside an edge, a triangle beyond that edge and
+///   below the face's plane (both within `τ`) is at least `√((e′ − τ)² + (s′ − τ)²)` away,
+///   more than `s′` by over `δ` once `(e′ − τ)² > 2 (h + tol) (δ + τ) + (δ + τ)²`. Over a thick skin the first is tiny (`e′² / 2s′` for a
 ///   neighbour across an edge `e′` away: ~1 µm on the bench's muscle, less than a solver step
 ///   moves a sliding vertex) and the second is most of the distance to the face's edges.
 ///
@@ -1582,28 +1584,14 @@ fn hold_of(
     others: f64,
 ) -> Option<(f32, [f32; 2])> {
     let scale = f64::from(scale);
-    let delta = 4e-6 * scale;
+    let delta = HOLD_ROUNDING * scale;
     let closest = 0.5 * (f64::from(margin) - delta);
     let closest = match prism {
         Some(prism) => {
-            let tau = f64::from(PRISM_TAU) * scale;
-            let dt = delta + tau;
-            let top = f64::from(h + tol);
-            let inside = f64::from(prism.edge) - tau - (2.0 * top * dt + dt * dt).sqrt();
-            let rest = 0.5 * (f64::from(prism.rest) - delta);
-            {
-                use std::sync::atomic::Ordering::Relaxed;
-                PSTAT2[0].fetch_add(1, Relaxed);
-                PSTAT2[1].fetch_add((rest < inside) as u64, Relaxed);
-                PSTAT2[2].fetch_add((inside.max(0.0) * 1e9) as u64, Relaxed);
-                PSTAT2[3].fetch_add((rest.max(0.0) * 1e9) as u64, Relaxed);
-                PSTAT2[4].fetch_add((f64::from(prism.edge).max(0.0) * 1e9) as u64, Relaxed);
-                PSTAT2[5].fetch_add((closest.max(0.0) * 1e9) as u64, Relaxed);
-                PSTAT2[6].fetch_add(
-                    (f64::from(prism.rest) <= f64::from(margin) * 1.0001) as u64,
-                    Relaxed,
-                );
-            }
+            let (inside, rest) = (
+                f64::from(prism.inside),
+                0.5 * (f64::from(prism.rest) - delta),
+            );
             // A NaN anywhere leaves the first radius (`max` skips a NaN).
             if inside.is_nan() || rest.is_nan() {
                 closest
@@ -1630,13 +1618,25 @@ fn hold_of(
     (lo <= 0.0 && hi >= 0.0).then_some((radius as f32, [lo as f32, hi as f32]))
 }
 
-/// Scratch.
-pub static PSTAT2: [std::sync::atomic::AtomicU64; 8] =
-    [const { std::sync::atomic::AtomicU64::new(0) }; 8];
+/// The rounding allowance `δ` of two f32 distances compared in a hold (see `hold_of`),
+/// relative to the coordinates' magnitude.
+const HOLD_ROUNDING: f64 = 4e-6;
 
-/// The allowance of a [`Prism`]'s corner and edge tests, relative to the coordinates'
+/// The allowance `τ` of a [`Prism`]'s corner and edge tests, relative to the coordinates'
 /// magnitude: far over their f32 rounding (a few 1e-7).
-const PRISM_TAU: f32 = 5e-7;
+const PRISM_TAU: f64 = 5e-7;
+
+/// How far inside its face's edges a point at most `top` above the face must be for every
+/// triangle beyond an edge and below the face to stay farther than the face by over the
+/// rounding allowance (see `hold_of`), plus `τ`; and that allowance `δ`, both for coordinates
+/// of magnitude `scale`.
+fn prism_allowance(scale: f32, top: f32) -> (f32, f32) {
+    let scale = f64::from(scale);
+    let (delta, tau) = (HOLD_ROUNDING * scale, PRISM_TAU * scale);
+    let dt = delta + tau;
+    let need = tau + (2.0 * f64::from(top) * dt + dt * dt).sqrt();
+    (need as f32, delta as f32)
+}
 
 /// The substeps a largest reaching motion `motion` asks for, before the clamp to
 /// `1..=max_substeps`: `⌈motion / step⌉` (f32), `step` half the thinnest skin (none: 1).
