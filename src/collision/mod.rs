@@ -1561,16 +1561,18 @@ impl Ctx<'_> {
 /// no hold.
 ///
 /// The triangle stays the closest within the larger of two radii (each sound alone):
-/// - half its `margin` over every other triangle (the first of `margins`): any edge or corner
-///   of a closed mesh is shared with a triangle as close, so it also projects inside the face;
-/// - with a [`Prism`] (the second of `margins`), the smaller of half its margin over the
-///   triangles not beyond one of the face's edges, and its clearance from those edges less
-///   what keeps a triangle beyond an edge farther than the face (`prism_allowance`): at height
-///   `s′ ≤ h + tol` above the face and `e′` inside an edge, a triangle beyond that edge and
-///   below the face's plane (both within `τ`) is at least `√((e′ − τ)² + (s′ − τ)²)` away,
-///   more than `s′` by over `δ` once `(e′ − τ)² > 2 (h + tol) (δ + τ) + (δ + τ)²`. Over a thick skin the first is tiny (`e′² / 2s′` for a
-///   neighbour across an edge `e′` away: ~1 µm on the bench's muscle, less than a solver step
-///   moves a sliding vertex) and the second is most of the distance to the face's edges.
+/// - half its `margin` over every other triangle: any edge or corner of a closed mesh is
+///   shared with a triangle as close, so it also projects inside the face;
+/// - with a [`Prism`] (`prism`), the smaller of half its margin over the triangles not beyond
+///   one of the face's edges, and its clearance from those edges less what keeps a triangle
+///   beyond an edge farther than the face (`prism_allowance`): at height `s′ ≤ h + tol` above
+///   the face and `e′` inside an edge, a triangle beyond that edge and below the face's plane
+///   (both within `τ`) is at least `√((e′ − τ)² + (s′ − τ)²)` away, more than `s′` by over
+///   `δ` once `(e′ − τ)² > 2 (h + tol) (δ + τ) + (δ + τ)²`.
+///
+/// Over a thick skin the first is tiny (`e′² / 2s′` for a neighbour across an edge `e′` away:
+/// ~1 µm on the bench's muscle, less than a solver step moves a sliding vertex) and the second
+/// is most of the distance to the face's edges.
 ///
 /// Each bound less its rounding allowance relative to `scale` (the largest coordinate, world
 /// or rest frame, plus the distance): the f32 distances a few ulps (allowed 1e-6 each), the tie
