@@ -1386,9 +1386,8 @@ impl Ctx<'_> {
         let mut touching = Contact::NONE;
         let mut unresolved = false;
         // The last round's touch inside a mesh face, certified: (collider, signed distance,
-        // largest rest-frame coordinate, margin of its triangle over every other, rest-frame
-        // point, triangle).
-        let mut face: Option<(usize, f32, f32, f32, Vec3, u32)> = None;
+        // margin of its triangle over every other, rest-frame point, triangle).
+        let mut face: Option<(usize, f32, f32, Vec3, u32)> = None;
         // Rounds 0..max_rounds push; one more round only checks.
         for round in 0..=cfg.max_rounds {
             let check_only = round == cfg.max_rounds;
@@ -1444,10 +1443,8 @@ impl Ctx<'_> {
                     };
                     touches += 1;
                     // Inside a face (no barycentric coordinate zero) the normal is the face's.
-                    face = (certified && proj.coords.min_element() > 0.0).then(|| {
-                        let largest = local.abs().max_element();
-                        (c, s, largest, patches[c].margin, local, proj.part)
-                    });
+                    face = (certified && proj.coords.min_element() > 0.0)
+                        .then(|| (c, s, patches[c].margin, local, proj.part));
                 }
                 if state.anchor.collider == NONE {
                     state.anchor = contact;
@@ -1516,7 +1513,7 @@ impl Ctx<'_> {
         // covers the f32 distances of the skip test and the bound's own rounding to f32.
         let reserve = safe - band as f64 - 1e-5 * (p.abs().max_element() as f64 + safe) - 1e-9;
         let hold = match face {
-            Some((c, s, largest, margin, local, part))
+            Some((c, s, margin, local, part))
                 if self.face_holds
                     && cfg.friction == 0.0
                     && !unresolved
@@ -1524,12 +1521,11 @@ impl Ctx<'_> {
                     && state.touches[0].collider == c as u32
                     && state.touches[1].collider == NONE =>
             {
-                let scale = p.abs().max_element().max(largest) + s.abs();
+                let scale = p.abs().max_element().max(local.abs().max_element()) + s.abs();
                 let patch = &patches[c];
                 let prism = patch.slack(local, self.travel[c]).and_then(|slack| {
-                    let tau = (PRISM_TAU * f64::from(scale)) as f32;
-                    let (need, delta) = prism_allowance(scale, h + tol);
-                    self.colliders[c].face_prism(local, part, patch, slack, (tau, need, delta))
+                    let allowance = prism_allowance(scale, h + tol);
+                    self.colliders[c].face_prism(local, part, patch, slack, allowance)
                 });
                 hold_of(scale, (h, tol, band), s, (margin, prism), others)
             }
@@ -1628,16 +1624,16 @@ const HOLD_ROUNDING: f64 = 4e-6;
 /// magnitude: far over their f32 rounding (a few 1e-7).
 const PRISM_TAU: f64 = 5e-7;
 
-/// How far inside its face's edges a point at most `top` above the face must be for every
-/// triangle beyond an edge and below the face to stay farther than the face by over the
-/// rounding allowance (see `hold_of`), plus `τ`; and that allowance `δ`, both for coordinates
-/// of magnitude `scale`.
-fn prism_allowance(scale: f32, top: f32) -> (f32, f32) {
+/// A prism's allowances for coordinates of magnitude `scale` (see `hold_of`): its corner
+/// tests' `τ`; how far inside its face's edges a point at most `top` above the face must be
+/// for every triangle beyond an edge and below the face to stay farther than the face by over
+/// the rounding allowance, plus `τ`; and that allowance `δ`.
+fn prism_allowance(scale: f32, top: f32) -> (f32, f32, f32) {
     let scale = f64::from(scale);
     let (delta, tau) = (HOLD_ROUNDING * scale, PRISM_TAU * scale);
     let dt = delta + tau;
     let need = tau + (2.0 * f64::from(top) * dt + dt * dt).sqrt();
-    (need as f32, delta as f32)
+    (tau as f32, need as f32, delta as f32)
 }
 
 /// The substeps a largest reaching motion `motion` asks for, before the clamp to
