@@ -568,9 +568,14 @@ pub fn relax_frame(
                 max_iterations,
                 ..*config
             };
+            let alongside = collision.alongside;
             let mut timed = Timed::new(&mut *collision);
             let report = system.relax_projected(x, loads, &sub_config, Some(&mut timed))?;
             projection_time += Duration::from_secs_f64(timed.seconds);
+            // The passes run alongside the force gather share its loop's wall time: theirs is
+            // their CPU time over the solve's team.
+            let members = crate::solver::team_size(x.len());
+            projection_time += (collision.alongside - alongside) / members as u32;
             iterations += report.iterations;
             last_report = Some(report);
         }

@@ -482,6 +482,10 @@ pub struct SkinCollision {
     /// Whether vertices touching inside a face may be held ([`Reach::hold`]); off only in tests
     /// that compare against resolving every touching vertex.
     face_holds: bool,
+    /// CPU time of the passes run alongside a solver's force gather
+    /// ([`Projection::project_step_deferred`]), summed over the threads that ran their groups:
+    /// a timer around such a pass times the gather too (see [`relax_frame`]).
+    pub(super) alongside: std::time::Duration,
 }
 
 /// The substeps of the frame in progress.
@@ -529,6 +533,7 @@ impl SkinCollision {
             active_owner: Vec::new(),
             held_vertices: Vec::new(),
             face_holds: true,
+            alongside: std::time::Duration::ZERO,
         })
     }
 
@@ -1243,10 +1248,28 @@ impl SkinCollision {
 impl SkinCollision {
     /// A projection pass ([`Projection::project`]), after the solver's `step` if given.
     fn project_after(&mut self, x: &mut [Vec3], order: &[u32], step: Option<&Step<'_>>) -> bool {
+        let moved = self.pass_after(x, order, step, false);
+        for (&i, &p) in self.view.moved.iter().zip(&self.view.moves) {
+            x[i as usize] = p;
+        }
+        moved
+    }
+
+    /// [`project_after`](Self::project_after) leaving `x` as it is: the moved vertices and
+    /// their new positions are `self.view.moved` and `self.view.moves`.
+    /// The pass's groups are timed into `alongside` when `alongside` holds.
+    fn pass_after(
+        &mut self,
+        x: &[Vec3],
+        order: &[u32],
+        step: Option<&Step<'_>>,
+        alongside: bool,
+    ) -> bool {
         let n = self.vertex_count();
         self.active.clear();
         self.active_owner.clear();
         self.view.moved.clear();
+        self.view.moves.clear();
         if x.len() != n || order.len() != n {
             self.diagnostics.length_mismatch = true;
             return false;
@@ -1260,7 +1283,7 @@ impl SkinCollision {
         }
         // The touching vertices come in the solver's order; each with its contacts in
         // resolution order below.
-        let Some((done, touching)) = self.project_pass(x, step) else {
+        let Some((done, touching)) = self.project_pass(x, step, alongside) else {
             return false;
         };
         let moved = done.counters.moved > 0;
@@ -1296,6 +1319,27 @@ impl Projection for SkinCollision {
     /// answers.
     fn project_step(&mut self, x: &mut [Vec3], order: &[u32], step: &Step<'_>) -> bool {
         self.project_after(x, order, Some(step))
+    }
+
+    /// [`project_step`](Self::project_step) leaving `x` as it is (its pass runs alongside the
+    /// solver's force gather): the same answers, the moves handed to the solver.
+    fn project_step_deferred(
+        &mut self,
+        x: &[Vec3],
+        order: &[u32],
+        step: &Step<'_>,
+        moves: &mut Vec<(u32, Vec3)>,
+    ) -> Option<bool> {
+        let moved = self.pass_after(x, order, Some(step), true);
+        moves.clear();
+        moves.extend(
+            self.view
+                .moved
+                .iter()
+                .copied()
+                .zip(self.view.moves.iter().copied()),
+        );
+        Some(moved)
     }
 
     fn settled(&mut self, x: &[Vec3]) {

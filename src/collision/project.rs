@@ -29,6 +29,9 @@
 //! pass resolves it, but the test here may skip it, and the pass then reports it as touching
 //! with the contact it had, which is what resolving it would find (see `hold_of`).
 
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -68,8 +71,11 @@ pub(super) struct View {
     /// skip test is [`Holder::keeps`] instead (their `limit2` fails every pass), and they are
     /// reported as touching when it passes.
     holders: Vec<Holder>,
-    /// The vertices (internal indices) the last pass moved.
+    /// The vertices (internal indices) the last pass moved...
     pub(super) moved: Vec<u32>,
+    /// ... and where to, in the same order (a pass leaves its positions as they were; the
+    /// caller applies these).
+    pub(super) moves: Vec<Vec3>,
     /// Buffers kept from pass to pass, so that a pass does not grow its lists from empty
     /// (reallocations were ~5 % of a 10k tube's passes' instructions, session 28): each
     /// group's results...
@@ -155,8 +161,10 @@ struct GroupPass {
     in_blocks: u64,
     /// Held vertices their hold kept.
     kept: u64,
-    /// The vertices resolved to a new position (internal indices, increasing).
+    /// The vertices resolved to a new position (internal indices, increasing)...
     moved: Vec<u32>,
+    /// ... and their new positions.
+    moves: Vec<Vec3>,
     /// The vertices still too close after their resolution (caller's indices).
     unresolved: Vec<u32>,
     /// `(internal, caller's)` index of every vertex touching a collider, by internal index.
@@ -171,6 +179,7 @@ impl GroupPass {
         self.counters = Counters::default();
         (self.skipped, self.in_blocks, self.kept) = (0, 0, 0);
         self.moved.clear();
+        self.moves.clear();
         self.unresolved.clear();
         self.touching.clear();
         self.holders.clear();
@@ -206,8 +215,9 @@ impl SkinCollision {
     /// if any ([`Par::current`]): its helpers are awake, where rayon's may sleep.
     pub(super) fn project_pass(
         &mut self,
-        x: &mut [Vec3],
+        x: &[Vec3],
         step: Option<&Step<'_>>,
+        alongside: bool,
     ) -> Option<(ChunkPass, Vec<(u32, u32)>)> {
         let nc = self.colliders.len();
         let n = x.len();
@@ -225,7 +235,7 @@ impl SkinCollision {
             self.view.prev.fill(Vec3::NAN);
             self.view.prev_stale = false;
         }
-        Par::current(|par| Some(self.pass_on(par, x, step, &travel, travel_sum)))
+        Par::current(|par| Some(self.pass_on(par, x, (step, alongside), &travel, travel_sum)))
     }
 
     /// A solve that called [`project_pass`](Self::project_pass) with its steps ended with the
@@ -254,8 +264,8 @@ impl SkinCollision {
     fn pass_on(
         &mut self,
         par: Par<'_>,
-        x: &mut [Vec3],
-        step: Option<&Step<'_>>,
+        x: &[Vec3],
+        (step, alongside): (Option<&Step<'_>>, bool),
         travel: &[f64],
         travel_sum: f64,
     ) -> (ChunkPass, Vec<(u32, u32)>) {
@@ -275,7 +285,7 @@ impl SkinCollision {
         outs.resize_with(groups, GroupPass::default);
         outs.iter_mut().for_each(GroupPass::clear);
         {
-            let (xs, prevs) = (Chunked::new(x, GROUP), Chunked::new(&mut view.prev, GROUP));
+            let prevs = Chunked::new(&mut view.prev, GROUP);
             let (ats, limits) = (
                 Chunked::new(&mut view.at, GROUP),
                 Chunked::new(&mut view.limit2, GROUP),
@@ -297,11 +307,14 @@ impl SkinCollision {
                 Chunked::new(&mut self.patches, nc),
             );
             let (rank_of, thickness, holders) = (&self.rank_of, &self.thickness, &view.holders);
+            // The groups' CPU time, ns, when the pass runs alongside a gather.
+            let nanos = AtomicU64::new(0);
             par.for_each_min(groups, SKIP_TASK_GROUPS, |g| {
+                let started = alongside.then(Instant::now);
                 // SAFETY: each group index once per loop.
-                let (xs, prevs, ats, limits, out) = unsafe {
+                let xs = &x[g * GROUP..((g + 1) * GROUP).min(n)];
+                let (prevs, ats, limits, out) = unsafe {
                     (
-                        xs.chunk(g),
                         prevs.chunk(g),
                         ats.chunk(g),
                         limits.chunk(g),
@@ -317,7 +330,7 @@ impl SkinCollision {
                     .iter()
                     .peekable();
                 for (b, ((xs, prevs), (at, limit2))) in xs
-                    .chunks_mut(BLOCK)
+                    .chunks(BLOCK)
                     .zip(prevs.chunks_mut(BLOCK))
                     .zip(ats.chunks_mut(BLOCK).zip(limits.chunks_mut(BLOCK)))
                     .enumerate()
@@ -333,6 +346,7 @@ impl SkinCollision {
                         }
                     }
                     let (mut bits, clear) = failures(xs, at, limit2, step.is_some());
+                    let block_moves = out.moves.len();
                     (slack[b], magnitude[b], moved_since[b]) = match clear {
                         Some(c) if bits == 0 => (c.slack, c.magnitude, 0.0),
                         _ => (f32::NEG_INFINITY, 0.0, 0.0),
@@ -376,8 +390,8 @@ impl SkinCollision {
                             &mut out.counters,
                         );
                         if moved {
-                            xs[k] = p;
                             out.moved.push(i);
+                            out.moves.push(p);
                         }
                         if unresolved {
                             out.unresolved.push(o);
@@ -393,9 +407,21 @@ impl SkinCollision {
                     // step the step gives them back instead.
                     if step.is_none() {
                         prevs.copy_from_slice(xs);
+                        let block = first + b * BLOCK;
+                        for (&i, &p) in out.moved[block_moves..]
+                            .iter()
+                            .zip(&out.moves[block_moves..])
+                        {
+                            prevs[i as usize - block] = p;
+                        }
                     }
                 }
+                if let Some(t) = started {
+                    let ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
+                    nanos.fetch_add(ns, Ordering::Relaxed);
+                }
             });
+            self.alongside += Duration::from_nanos(nanos.into_inner());
         }
         // The groups' results in group order: the solver's order.
         let mut pass = ChunkPass::default();
@@ -412,6 +438,7 @@ impl SkinCollision {
             c.contacts += out.kept;
             c.moved += out.moved.len() as u64;
             view.moved.extend_from_slice(&out.moved);
+            view.moves.extend_from_slice(&out.moves);
             pass.unresolved.extend_from_slice(&out.unresolved);
             touching.extend_from_slice(&out.touching);
             holders.extend_from_slice(&out.holders);

@@ -120,8 +120,20 @@ impl Frame<'_> {
         self.gather_inputs(x, Some(d), w, r, partial, None)
     }
 
+    /// [`gather_along`](Self::gather_along) with `body` run alongside (see
+    /// [`Par::with_rider`]): its first parallel loop on the solve's team shares the gather's.
+    /// `body` must not write `x`, `d`, `w` or `r`.
+    pub fn gather_along_with<R>(
+        &self,
+        (x, d, w): (&[Vec3], &[Vec3], Option<&[f32]>),
+        r: &mut [Vec3],
+        partial: &mut [Sums],
+        body: impl FnOnce() -> R,
+    ) -> (Sums, R) {
+        self.gather_inputs_with(x, Some(d), w, (r, partial), None, body)
+    }
+
     /// The force gather over the chunks `only` (sorted, no repeats; `None`: every chunk).
-    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
     fn gather_inputs(
         &self,
         x: &[Vec3],
@@ -131,6 +143,21 @@ impl Frame<'_> {
         partial: &mut [Sums],
         only: Option<&[u32]>,
     ) -> Sums {
+        self.gather_inputs_with(x, dir, w, (r, partial), only, || ())
+            .0
+    }
+
+    /// [`gather_inputs`](Self::gather_inputs) with `body` run alongside ([`Par::with_rider`]).
+    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
+    fn gather_inputs_with<R>(
+        &self,
+        x: &[Vec3],
+        dir: Option<&[Vec3]>,
+        w: Option<&[f32]>,
+        (r, partial): (&mut [Vec3], &mut [Sums]),
+        only: Option<&[u32]>,
+        body: impl FnOnce() -> R,
+    ) -> (Sums, R) {
         let inputs = ForceInputs {
             sell: self.sell,
             x,
@@ -141,13 +168,14 @@ impl Frame<'_> {
         };
         let (rs, ps) = (Chunked::new(r, CHUNK), Chunked::new(partial, 1));
         let count = only.map_or(ps.chunks(), <[u32]>::len);
-        self.par.for_each(count, |k| {
+        let chunk = |k: usize| {
             let c = only.map_or(k, |only| only[k] as usize);
             // SAFETY: each chunk index once per loop (`only` has no repeats).
             let (r, p) = unsafe { (rs.chunk(c), ps.chunk(c)) };
             p[0] = inputs.chunk(self.isa, c * CHUNK, r);
-        });
-        total(partial)
+        };
+        let out = self.par.with_rider(count, &chunk, body);
+        (total(partial), out)
     }
 
     /// `dᵀ H d` for the spring Hessian at `x`, with the transverse term clamped at zero for

@@ -213,6 +213,29 @@ pub trait Projection: Send {
         self.project(x, order)
     }
 
+    /// [`project_step`](Self::project_step) without writing `x`, for a solver that runs it
+    /// alongside its force gather at the same point: `moves` (cleared first) receives each
+    /// vertex it moves (internal index) with its new position, in the order of
+    /// [`moved_vertices`](Self::moved_vertices), and the solver applies them. Its parallel
+    /// loops find the solve's team through the usual route and share their first loop with
+    /// the gather. `None` (the default): the projection does not project this way, and the
+    /// solver calls [`project_step`](Self::project_step) after the gather instead.
+    ///
+    /// When the solver rejects the step (the energy rose there), it goes back to the point
+    /// before it, reports that point with [`settled`](Self::settled), and projects the next
+    /// step it accepts with [`project`](Self::project): the moves are dropped. After two such
+    /// rejections in a solve it calls [`project_step`](Self::project_step) for the rest of it.
+    fn project_step_deferred(
+        &mut self,
+        x: &[Vec3],
+        order: &[u32],
+        step: &Step<'_>,
+        moves: &mut Vec<(u32, Vec3)>,
+    ) -> Option<bool> {
+        let _ = (x, order, step, moves);
+        None
+    }
+
     /// The solve that called [`project_step`](Self::project_step) ended; `x` (internal
     /// order) holds the positions of its last projection. The default does nothing.
     fn settled(&mut self, x: &[Vec3]) {
@@ -824,7 +847,7 @@ impl SpringSystem {
         // iteration has several short parallel loops, and handed to rayon one by one every
         // loop would wait for a sleeping worker to wake up (futex round trips that cost more
         // than a 10k-vertex loop). The team's helpers stay awake for the whole solve.
-        let helpers = kernels::chunks(self.vertex_count()).saturating_sub(1);
+        let helpers = team_size(self.vertex_count()) - 1;
         Team::lead(helpers, |team| {
             self.relax_on_pool(x, loads, config, projection, team, clock)
         })
@@ -960,6 +983,12 @@ impl SpringSystem {
         let mut after_proportioning = false;
         // Whether the projection saw a step (it then expects `settled` at the end).
         let mut stepped = false;
+        // The moves of a projection run alongside the force gather (`project_step_deferred`).
+        // A trial step the solve rejects after such a pass costs a whole pass after it: after
+        // `ALONGSIDE_MISSES` of them the solve's passes follow the gather instead (a solve from
+        // rest often rejects its first trial; one that rejects many trials rejects more).
+        let mut moves: Vec<(u32, Vec3)> = Vec::new();
+        let mut misses = 0;
         while iterations < config.max_iterations {
             if converged(r_norm) {
                 stop = StopReason::Converged;
@@ -1007,9 +1036,20 @@ impl SpringSystem {
             // `r`, reading the old force for `Σ w r·r_old` first; a rejected trial restores it.
             let mut accepted = None;
             let mut at = 0.0f32;
+            // The projection's pass at the trial point when it ran alongside the gather (what
+            // it returned: whether it moved a vertex; see `Projection::project_step_deferred`).
+            let mut alongside = None;
+            // A rejected trial after such a pass: the accepted one is projected whole.
+            let mut whole = false;
             for attempt in 0..30 {
                 if attempt > 0 {
                     clock.time(|l| &mut l.step, || retreat(par, &mut xi, &d, at, &spills));
+                    if let (Some(_), Some(p)) = (alongside.take(), projection.as_deref_mut()) {
+                        // The pass saw a point the solver left: it hears where it is instead.
+                        p.settled(&xi);
+                        whole = true;
+                        misses += 1;
+                    }
                     clock.time(
                         |l| &mut l.force,
                         || frame.gather(&xi, Some(&inv_diag), &mut r, &mut sums_scratch),
@@ -1022,10 +1062,40 @@ impl SpringSystem {
                     || advance(par, &mut xi, &d, a, &mut spills),
                 );
                 at = a;
-                let sums = clock.time(
-                    |l| &mut l.force,
-                    || frame.gather_along(&xi, &d, Some(&inv_diag), &mut r, &mut sums_scratch),
-                );
+                let alongside_now = attempt == 0 && misses < ALONGSIDE_MISSES;
+                let sums = match projection.as_deref_mut().filter(|_| alongside_now) {
+                    // The projection's pass reads the trial point as the gather does, so it runs
+                    // in the gather's loop (one member resolving the few vertices near a
+                    // collider while the other gathers); its moves wait for the verdict.
+                    Some(p) => {
+                        let step = Step {
+                            d: &d,
+                            a,
+                            spills: &spills,
+                            reach: &reach,
+                        };
+                        let (sums, pass) = clock.time(
+                            |l| &mut l.force,
+                            || {
+                                frame.gather_along_with(
+                                    (&xi, &d, Some(&inv_diag)),
+                                    &mut r,
+                                    &mut sums_scratch,
+                                    || p.project_step_deferred(&xi, &self.order, &step, &mut moves),
+                                )
+                            },
+                        );
+                        if pass.is_some() {
+                            stepped = true;
+                        }
+                        alongside = pass;
+                        sums
+                    }
+                    None => clock.time(
+                        |l| &mut l.force,
+                        || frame.gather_along(&xi, &d, Some(&inv_diag), &mut r, &mut sums_scratch),
+                    ),
+                };
                 if sums.energy < energy {
                     accepted = Some(sums);
                     break;
@@ -1059,10 +1129,21 @@ impl SpringSystem {
                     spills: &spills,
                     reach: &reach,
                 };
-                let moved = clock.time(
-                    |l| &mut l.projection,
-                    || p.project_step(&mut xi, &self.order, &step),
-                );
+                let moved = match alongside {
+                    Some(moved) => {
+                        for &(i, to) in &moves {
+                            xi[i as usize] = to;
+                        }
+                        moved
+                    }
+                    None if whole => {
+                        clock.time(|l| &mut l.projection, || p.project(&mut xi, &self.order))
+                    }
+                    None => clock.time(
+                        |l| &mut l.projection,
+                        || p.project_step(&mut xi, &self.order, &step),
+                    ),
+                };
                 stepped = true;
                 if moved {
                     // The forces again where they read a moved vertex (every chunk when the
@@ -1183,6 +1264,16 @@ fn block_reach(d: &[Vec3], reach: &mut [f32]) {
             .iter()
             .fold(0.0f32, |m, v| m.max(v.abs().max_element()));
     }
+}
+
+/// Trial steps rejected after a projection pass run alongside the force gather
+/// ([`Projection::project_step_deferred`]) after which a solve projects after the gather.
+const ALONGSIDE_MISSES: u32 = 2;
+
+/// Members of the team a solve of `n` vertices runs on: one per thread of the current rayon
+/// pool, at most one per chunk of its loops (a helper with no chunk would only spin).
+pub(crate) fn team_size(n: usize) -> usize {
+    kernels::chunks(n).min(rayon::current_num_threads()).max(1)
 }
 
 fn check_len(what: &'static str, given: usize, expected: usize) -> Result<(), SolverError> {

@@ -28,6 +28,11 @@
 //! briefly, for an owner at work on its share, so a team whose helpers are busy elsewhere (or a
 //! pool of one thread) still runs, on the leader alone.
 //!
+//! A loop may carry a *rider* ([`Par::with_rider`]): another loop that reads nothing the first
+//! writes, run in the same loop so that a member done with its part of one takes the other's.
+//! A solve runs its projection pass (a few costly vertices near a collider, in one member's
+//! share) with the force gather riding along (`SpringSystem::relax_projected`).
+//!
 //! A chunk that panics, on either side, is rethrown by the leader once every claimed chunk of
 //! its loop is done (as a panic in a rayon loop reaches its caller): unwinding out of a helper
 //! would leave the leader waiting for its chunks forever, and the leader unwinding at once would
@@ -68,6 +73,28 @@ impl Par<'_> {
         }
     }
 
+    /// Runs `body` and the loop `rider` (`f(c)` for every chunk `c` in `0..n`) together: on a
+    /// team, the first parallel loop `body` runs on it (through [`Par::current`]) runs the
+    /// rider's chunks in the same loop, so whichever member is done with its part of one takes
+    /// the other's, and the rider runs alone after `body` if `body` ran no loop on the team.
+    /// On rayon's pool the rider runs after `body`. The two must not write what the other
+    /// reads: their chunks run in any order and concurrently.
+    pub fn with_rider<R>(
+        self,
+        n: usize,
+        rider: &(dyn Fn(usize) + Sync),
+        body: impl FnOnce() -> R,
+    ) -> R {
+        match self {
+            Par::Pool => {
+                let r = body();
+                self.for_each(n, rider);
+                r
+            }
+            Par::Team(team) => team.with_rider(n, rider, body),
+        }
+    }
+
     /// Runs `f` with the team of the solve this thread leads, outside that team's loops
     /// ([`Par::Pool`] anywhere else): a solve's callbacks (its projection) run their parallel
     /// loops on the solve's awake helpers instead of waking rayon's.
@@ -103,6 +130,13 @@ struct Job<'a> {
     f: &'a (dyn Fn(usize) + Sync),
 }
 
+/// A loop waiting to ride along the leader's next one (see [`Par::with_rider`]), on the
+/// leader's stack while it waits.
+struct Rider<'a> {
+    n: usize,
+    f: &'a (dyn Fn(usize) + Sync),
+}
+
 /// One member's share of the current loop, on cache lines of its own: the loop's number and
 /// the share's unclaimed chunks `front..back` in one word (see [`LOOP_SHIFT`]).
 #[repr(align(128))]
@@ -128,6 +162,11 @@ pub(crate) struct Team {
     panic: Mutex<Option<Box<dyn Any + Send>>>,
     /// Whether `panic` holds one (so the leader locks it only then, not after every loop).
     panicked: AtomicBool,
+    /// The loop to run with the leader's next one (null: none); only the leader touches it.
+    rider: AtomicPtr<Rider<'static>>,
+    /// Whether the current loop carries a rider: a member done with its share then leaves an
+    /// owner at work only its last chunk, not half its share.
+    eager: AtomicBool,
 }
 
 /// Where `back` starts in a share's word, above `front` (24 bits each).
@@ -207,6 +246,8 @@ impl Team {
             finished: AtomicBool::new(false),
             panic: Mutex::new(None),
             panicked: AtomicBool::new(false),
+            rider: AtomicPtr::new(std::ptr::null_mut()),
+            eager: AtomicBool::new(false),
         }
     }
 
@@ -234,7 +275,11 @@ impl Team {
             // Where its owner starts, and how many chunks it keeps while it is at work.
             let start = v as u64 * n / members as u64;
             let end = (v as u64 + 1) * n / members as u64;
-            let keep = (end - start).div_ceil(2).max(1);
+            let keep = if self.eager.load(Ordering::Relaxed) {
+                1
+            } else {
+                (end - start).div_ceil(2).max(1)
+            };
             let mut s = share.load(Ordering::Relaxed);
             // Only a share of the loop this member's own share is from: a share of the next
             // loop, published after this member read its own, is its owner's to start.
@@ -281,9 +326,88 @@ impl Team {
         }
     }
 
+    /// [`Par::with_rider`] on this team. Only the leader may call it.
+    fn with_rider<R>(&self, n: usize, f: &(dyn Fn(usize) + Sync), body: impl FnOnce() -> R) -> R {
+        /// Takes the rider back however `body` ends (a panic included), so that no later loop
+        /// runs it after its frame is gone.
+        struct Unride<'a>(&'a Team);
+        impl Drop for Unride<'_> {
+            fn drop(&mut self) {
+                self.0.rider.store(std::ptr::null_mut(), Ordering::Relaxed);
+            }
+        }
+        let rider = Rider { n, f };
+        // Only the lifetime is erased: `run` dereferences it only while `body` runs (below),
+        // within this frame, and `Unride` clears it before the frame ends.
+        let ptr = (&raw const rider).cast::<Rider<'static>>().cast_mut();
+        let previous = self.rider.swap(ptr, Ordering::Relaxed);
+        debug_assert!(previous.is_null(), "one rider at a time");
+        let _unride = Unride(self);
+        let r = body();
+        // A loop that took the rider cleared it; else `body` ran no loop on the team, and the
+        // rider runs alone.
+        if std::ptr::eq(
+            self.rider.swap(std::ptr::null_mut(), Ordering::Relaxed),
+            ptr,
+        ) {
+            self.run_alone(n, f);
+        }
+        r
+    }
+
     /// Runs `f(c)` for every chunk `c` in `0..n`, on the leader and whichever helpers are
-    /// waiting; returns when all have finished. Only the leader may call it.
+    /// waiting; returns when all have finished. Only the leader may call it. A loop waiting
+    /// to ride along ([`Par::with_rider`]) runs in the same loop: each member's share holds
+    /// the chunks of `f` its share of `f` alone would hold, then the rider's likewise (so the
+    /// vertices stay on their cores), and a member done with its share takes another's
+    /// chunks from its back down to the last one, not only half of it: the two loops'
+    /// work rarely splits evenly between the shares (a projection's few costly vertices sit
+    /// in one), and the rider's chunks at the back even it out.
     pub fn run(&self, n: usize, f: &(dyn Fn(usize) + Sync)) {
+        let rider = self.rider.swap(std::ptr::null_mut(), Ordering::Relaxed);
+        if rider.is_null() {
+            return self.run_alone(n, f);
+        }
+        self.eager.store(true, Ordering::Relaxed);
+        struct Calm<'a>(&'a Team);
+        impl Drop for Calm<'_> {
+            fn drop(&mut self) {
+                self.0.eager.store(false, Ordering::Relaxed);
+            }
+        }
+        let _calm = Calm(self);
+        // SAFETY: a rider is stored only while `with_rider` runs its body, which called this
+        // (only the leader runs loops), and its frame holds the rider.
+        #[expect(
+            unsafe_code,
+            reason = "the rider outlives the body that runs this loop"
+        )]
+        let Rider { n: m, f: g } = *unsafe { &*rider };
+        // Member `k`'s share: its chunks of `f` (those `f` alone would give it), then its
+        // chunks of the rider (the same): the owner starts on `f`'s, and a member done with its
+        // share takes the rider's from the back of another's.
+        let members = self.shares.len();
+        let start = |k: usize| (k * n / members, k * m / members);
+        self.run_alone(n + m, &|c| {
+            let k = (1..members)
+                .take_while(|&k| {
+                    let (a, b) = start(k);
+                    a + b <= c
+                })
+                .last()
+                .unwrap_or(0);
+            let ((a, b), (a_end, _)) = (start(k), start(k + 1));
+            let local = c - a - b;
+            if local < a_end - a {
+                f(a + local);
+            } else {
+                g(b + local - (a_end - a));
+            }
+        });
+    }
+
+    /// [`run`](Self::run) without a rider.
+    fn run_alone(&self, n: usize, f: &(dyn Fn(usize) + Sync)) {
         assert!(n < MAX_CHUNKS, "too many chunks for one loop");
         let job = Job { f };
         // Only the lifetime is erased: helpers dereference the pointer only after claiming a
@@ -508,6 +632,79 @@ mod tests {
         }
         // A team without helpers (a one-chunk solve's) runs everything on the leader.
         every_chunk_once(2, 0, 300);
+    }
+
+    /// A rider joins the first loop its body runs on the team (every chunk of both once, the
+    /// rider's all done when that loop returns), runs alone after a body that ran no loop,
+    /// and runs after the body on rayon's pool; loops after the first do not run it again.
+    #[test]
+    fn a_rider_runs_once_with_the_body_s_first_loop_or_after_the_body() {
+        for threads in [1, 2, 3, 4] {
+            pool(threads).install(|| {
+                Team::lead(usize::MAX, |team| {
+                    for l in 0..400 {
+                        // Both sizes equal, then different (the shares split each its own way).
+                        let (n, m) = ((l * 7) % 23, if l % 2 == 0 { (l * 7) % 23 } else { l % 13 });
+                        let body: Vec<AtomicUsize> = (0..n).map(|_| AtomicUsize::new(0)).collect();
+                        let rider: Vec<AtomicUsize> = (0..m).map(|_| AtomicUsize::new(0)).collect();
+                        let rider_done = || {
+                            rider
+                                .iter()
+                                .map(|h| h.load(Ordering::Relaxed))
+                                .sum::<usize>()
+                        };
+                        let runs_a_loop = l % 3 != 0;
+                        let seen = Par::Team(team).with_rider(
+                            m,
+                            &|c| {
+                                rider[c].fetch_add(1, Ordering::Relaxed);
+                            },
+                            || {
+                                if !runs_a_loop {
+                                    return rider_done();
+                                }
+                                Par::current(|par| {
+                                    par.for_each(n, |c| {
+                                        body[c].fetch_add(1, Ordering::Relaxed);
+                                    });
+                                    let after_first = rider_done();
+                                    par.for_each(n, |c| {
+                                        body[c].fetch_add(1, Ordering::Relaxed);
+                                    });
+                                    after_first
+                                })
+                            },
+                        );
+                        let expected = if runs_a_loop { m } else { 0 };
+                        assert_eq!(seen, expected, "loop {l}: the rider's chunks in the body");
+                        assert!(
+                            rider.iter().all(|h| h.load(Ordering::Relaxed) == 1),
+                            "loop {l}"
+                        );
+                        let twice = if runs_a_loop { 2 } else { 0 };
+                        assert!(
+                            body.iter().all(|h| h.load(Ordering::Relaxed) == twice),
+                            "loop {l}"
+                        );
+                    }
+                });
+                // On rayon's pool: after the body.
+                let hits: Vec<AtomicUsize> = (0..9).map(|_| AtomicUsize::new(0)).collect();
+                let during = Par::Pool.with_rider(
+                    9,
+                    &|c| {
+                        hits[c].fetch_add(1, Ordering::Relaxed);
+                    },
+                    || {
+                        hits.iter()
+                            .map(|h| h.load(Ordering::Relaxed))
+                            .sum::<usize>()
+                    },
+                );
+                assert_eq!(during, 0);
+                assert!(hits.iter().all(|h| h.load(Ordering::Relaxed) == 1));
+            });
+        }
     }
 
     /// The chunks a claim handed out, if any.

@@ -880,3 +880,124 @@ fn a_timed_solve_gives_the_same_answer_and_its_loops_fit_in_its_time() {
     s.relax_timed(&mut again, &loads, &cfg, &mut times).unwrap();
     assert!(times.total > before.total && times.force > before.force);
 }
+
+/// A floor that projects alongside the solver's force gather (`project_step_deferred`), its
+/// moves found in a parallel loop on the solve's team; it counts how the solver drives it.
+#[derive(Default)]
+struct FloorAlongside {
+    z: f32,
+    /// Passes run alongside the gather.
+    alongside: usize,
+    /// Whole passes (`project`) right after a `settled` in the middle of a solve.
+    whole_after_settled: usize,
+    /// `settled` calls.
+    settled: usize,
+    waiting: bool,
+}
+
+impl Projection for FloorAlongside {
+    fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool {
+        if std::mem::take(&mut self.waiting) {
+            self.whole_after_settled += 1;
+        }
+        Floor(self.z).project(x, order)
+    }
+
+    fn project_step_deferred(
+        &mut self,
+        x: &[Vec3],
+        _order: &[u32],
+        _step: &Step<'_>,
+        moves: &mut Vec<(u32, Vec3)>,
+    ) -> Option<bool> {
+        self.alongside += 1;
+        let chunks = x.len().div_ceil(256);
+        let found: Vec<std::sync::Mutex<Vec<(u32, Vec3)>>> =
+            (0..chunks).map(|_| Default::default()).collect();
+        team::Par::current(|par| {
+            par.for_each(chunks, |c| {
+                let low = (c * 256..((c + 1) * 256).min(x.len()))
+                    .filter(|&i| x[i].z < self.z)
+                    .map(|i| (i as u32, Vec3::new(x[i].x, x[i].y, self.z)));
+                found[c].lock().unwrap().extend(low);
+            });
+        });
+        moves.clear();
+        moves.extend(found.into_iter().flat_map(|f| f.into_inner().unwrap()));
+        Some(!moves.is_empty())
+    }
+
+    fn settled(&mut self, _x: &[Vec3]) {
+        self.settled += 1;
+        self.waiting = true;
+    }
+}
+
+/// The projection run alongside the force gather, its moves applied after it, gives the bits
+/// of the projection run after the gather, on any number of threads: on a sheet sagging onto
+/// a floor, and through rejected trial steps (the first trial from rest raises the energy: the
+/// solver then reports the point it went back to and projects the step it accepts whole; after
+/// two such rejections it projects after the gather).
+#[test]
+fn a_projection_alongside_the_gather_gives_the_same_bits_through_rejected_steps() {
+    let bits = |x: &[Vec3]| -> Vec<[u32; 3]> {
+        x.iter().map(|p| p.to_array().map(f32::to_bits)).collect()
+    };
+    // (sheet size, pinned corners, load, floor)
+    for (size, corners, load, z) in [(12, 2, -0.5, -0.06), (40, 1, -100.0, -0.2)] {
+        let mesh = sheet(size);
+        let s = system(&mesh);
+        let n = mesh.positions().len();
+        let mut pinned = vec![false; n];
+        pinned[0] = true;
+        pinned[n - 1] = corners == 2;
+        let forces = vec![Vec3::new(0.0, 0.0, load); n];
+        let loads = Loads {
+            pinned: Some(&pinned),
+            forces: Some(&forces),
+            ..Default::default()
+        };
+        let cfg = RelaxConfig {
+            max_iterations: 80,
+            tolerance: 1e-5,
+            ..RelaxConfig::DEFAULT
+        };
+        let mut after = mesh.positions().to_vec();
+        let plain = crate::test_support::in_pool(2, || {
+            s.relax_projected(&mut after, &loads, &cfg, Some(&mut Floor(z)))
+                .unwrap()
+        });
+        for threads in [1, 2, 3] {
+            let mut x = mesh.positions().to_vec();
+            let mut floor = FloorAlongside {
+                z,
+                ..Default::default()
+            };
+            let report = crate::test_support::in_pool(threads, || {
+                s.relax_projected(&mut x, &loads, &cfg, Some(&mut floor))
+                    .unwrap()
+            });
+            let case = format!("load {load}, {threads} threads");
+            assert_eq!(bits(&x), bits(&after), "{case}");
+            assert_eq!(report.iterations, plain.iterations, "{case}");
+            assert_eq!(report.energy.to_bits(), plain.energy.to_bits(), "{case}");
+            assert!(x.iter().any(|p| p.z == z) && x.iter().all(|p| p.z >= z));
+            // Each rejected trial after a pass alongside the gather was reported, and the step
+            // accepted after it projected whole; the end of the solve was reported too.
+            let (alongside, whole) = (floor.alongside, floor.whole_after_settled);
+            assert_eq!(floor.settled, whole + 1, "{case}");
+            let its = report.iterations as usize;
+            if corners == 2 {
+                // One rejection (the first trial): every later step projected alongside.
+                assert!(
+                    whole >= 1 && alongside == its,
+                    "{case}: {alongside} {whole}"
+                );
+            } else {
+                // Many: after the second, the projections follow the gather.
+                assert_eq!(whole, ALONGSIDE_MISSES as usize, "{case}");
+                assert!(alongside < its / 2, "{case}: {alongside} of {its}");
+            }
+        }
+    }
+}
