@@ -40,6 +40,9 @@ pub struct Machine {
     /// The CPU, from CPUID: brand, vendor, family and model (`unknown` off x86-64). Which
     /// kernel path is fastest, and every figure, depends on it.
     pub cpu: String,
+    /// The CPUs the global pool's workers are pinned to, worker `i` to the `i`-th
+    /// ([`crate::threads::build_global_pool`]; empty: not pinned).
+    pub pinned_cpus: Vec<usize>,
 }
 
 /// Measures the machine (about a second).
@@ -95,6 +98,7 @@ pub fn calibrate(quick: bool) -> Machine {
         spring_ns,
         kernels: crate::solver::kernel_path(),
         cpu: crate::cpu::description(),
+        pinned_cpus: crate::threads::pinned_cpus().to_vec(),
     }
 }
 

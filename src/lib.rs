@@ -41,6 +41,7 @@ pub mod mesh;
 pub mod paper;
 pub mod solver;
 pub mod stiffness;
+pub mod threads;
 
 #[cfg(test)]
 mod test_support {

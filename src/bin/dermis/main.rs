@@ -58,6 +58,13 @@ fn print_written(files: &[std::path::PathBuf]) {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // The solves' teams spin between their loops: one worker per CPU, pinned, unless
+    // `DERMIS_PIN=0` (see `dermis::threads`).
+    let pin = std::env::var("DERMIS_PIN").map_or(true, |v| v.trim() != "0");
+    if let Err(e) = dermis::threads::build_global_pool(pin) {
+        eprintln!("error: {e}");
+        return ExitCode::FAILURE;
+    }
     let result: CliResult = match cli.command {
         Command::Export(args) => export::run(args),
         Command::Inspect(args) => inspect::run(args),
