@@ -9,7 +9,6 @@
 //! gather there, and the direction update.
 
 use glam::Vec3;
-use rayon::prelude::*;
 
 use super::STEP_BLOCK;
 use super::sell::{LANES, Sell};
@@ -197,9 +196,13 @@ impl Frame<'_> {
     /// Jacobi preconditioner: the diagonal stiffness of each vertex, inverted (`+0.0` when
     /// there is none), `-0.0` for a `pinned` vertex: the sign is the pin flag the force gather
     /// reads, and the weight is zero either way.
+    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
     pub fn inverse_diagonal(&self, pinned: &[bool]) -> Vec<f32> {
         let mut inv = vec![0.0f32; pinned.len()];
-        inv.par_chunks_mut(CHUNK).enumerate().for_each(|(c, inv)| {
+        let invs = Chunked::new(&mut inv, CHUNK);
+        self.par.for_each(invs.chunks(), |c| {
+            // SAFETY: each chunk index once per loop.
+            let inv = unsafe { invs.chunk(c) };
             let first = c * CHUNK;
             let springs = &self.spring_diagonal[first..first + inv.len()];
             for (o, (w, &springs)) in inv.iter_mut().zip(springs).enumerate() {

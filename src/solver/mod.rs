@@ -874,26 +874,32 @@ impl SpringSystem {
         if let Some(p) = loads.pinned {
             check_len("pinned", p.len(), n)?;
         }
-        if let Some(a) = loads.anchors {
-            check_len("anchors", a.len(), n)?;
-            if let Some(v) = a.iter().position(|a| {
-                !(a.target.is_finite()
-                    && a.normal.is_finite()
-                    && a.k_normal.is_finite()
-                    && a.k_tangent.is_finite())
-            }) {
-                return Err(SolverError::NonFinite {
-                    what: "anchor",
-                    vertex: v,
-                });
+        // The anchors laid out for the kernels, checked finite as they are.
+        let anchors = match loads.anchors {
+            Some(a) => {
+                check_len("anchors", a.len(), n)?;
+                let sliced = SlicedAnchors::finite(a, &self.order, par);
+                let Some(sliced) = sliced else {
+                    let bad = |a: &VertexAnchor| {
+                        !(a.target.is_finite()
+                            && a.normal.is_finite()
+                            && a.k_normal.is_finite()
+                            && a.k_tangent.is_finite())
+                    };
+                    return Err(SolverError::NonFinite {
+                        what: "anchor",
+                        vertex: a.iter().position(bad).unwrap_or(0),
+                    });
+                };
+                Some(sliced)
             }
-        }
+            None => None,
+        };
         let external = loads.forces.map(|f| self.to_internal(f));
         let pinned = match loads.pinned {
             Some(p) => self.to_internal(p),
             None => vec![false; n],
         };
-        let anchors = loads.anchors.map(|a| SlicedAnchors::new(a, &self.order));
         let frame = self.frame(external.as_deref(), anchors.as_ref(), par);
         let mut xi = self.to_internal(x);
 
@@ -1316,10 +1322,14 @@ fn check_springs(
 }
 
 fn check_finite(what: &'static str, v: &[Vec3]) -> Result<(), SolverError> {
-    match v.iter().position(|p| !p.is_finite()) {
-        Some(vertex) => Err(SolverError::NonFinite { what, vertex }),
-        None => Ok(()),
+    // Every float read without a branch (the common case: all finite), the first bad one
+    // found only when there is one.
+    let finite = |p: &Vec3| p.x.is_finite() & p.y.is_finite() & p.z.is_finite();
+    if v.iter().fold(true, |ok, p| ok & finite(p)) {
+        return Ok(());
     }
+    let vertex = v.iter().position(|p| !finite(p)).unwrap_or(0);
+    Err(SolverError::NonFinite { what, vertex })
 }
 
 #[cfg(test)]

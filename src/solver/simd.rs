@@ -19,12 +19,11 @@
 
 use std::mem::size_of;
 
-use rayon::prelude::*;
-
 use glam::Vec3;
 
 use super::kernels::Sums;
 use super::sell::{LANES, PAIR_LANES, Refs, Sell};
+use super::team::{Chunked, Par};
 use super::{STEP_BLOCK, VertexAnchor, fused};
 
 /// Eight lanes of f32 (and f64) arithmetic.
@@ -825,34 +824,58 @@ pub(crate) struct SlicedAnchors {
     n: usize,
 }
 
+/// Writes the anchors `anchors[order[l]]` into the rows of one slice (lane `l`); whether every
+/// float was finite.
+fn slice_anchors(rows: &mut [f32], anchors: &[VertexAnchor], order: &[u32]) -> bool {
+    let mut finite = true;
+    for (lane, &o) in order.iter().enumerate() {
+        let a = &anchors[o as usize];
+        let values = [
+            (TARGET, a.target.x),
+            (TARGET + 1, a.target.y),
+            (TARGET + 2, a.target.z),
+            (NORMAL, a.normal.x),
+            (NORMAL + 1, a.normal.y),
+            (NORMAL + 2, a.normal.z),
+            (K_NORMAL, a.k_normal),
+            (K_TANGENT, a.k_tangent),
+        ];
+        for (row, v) in values {
+            rows[row * LANES + lane] = v;
+            finite &= v.is_finite();
+        }
+    }
+    finite
+}
+
 impl SlicedAnchors {
     /// The anchors of internal vertex `i` at `anchors[order[i]]` (`order` a permutation of
-    /// `anchors`' indices).
-    pub fn new(anchors: &[VertexAnchor], order: &[u32]) -> Self {
+    /// `anchors`' indices), laid out on `par` in chunks of [`kernels::CHUNK`](super::kernels::CHUNK)
+    /// vertices and checked finite as they are: `None` if a float is not.
+    #[expect(unsafe_code, reason = "disjoint chunks written by one parallel loop")]
+    pub(crate) fn finite(anchors: &[VertexAnchor], order: &[u32], par: Par<'_>) -> Option<Self> {
         let n = order.len();
+        let chunk = super::kernels::CHUNK;
         let mut floats = vec![0.0f32; n.div_ceil(LANES) * LANES * ANCHOR_FLOATS];
-        floats
-            .par_chunks_mut(LANES * ANCHOR_FLOATS)
-            .zip(order.par_chunks(LANES))
-            .for_each(|(rows, order)| {
-                for (lane, &o) in order.iter().enumerate() {
-                    let a = &anchors[o as usize];
-                    let values = [
-                        (TARGET, a.target.x),
-                        (TARGET + 1, a.target.y),
-                        (TARGET + 2, a.target.z),
-                        (NORMAL, a.normal.x),
-                        (NORMAL + 1, a.normal.y),
-                        (NORMAL + 2, a.normal.z),
-                        (K_NORMAL, a.k_normal),
-                        (K_TANGENT, a.k_tangent),
-                    ];
-                    for (row, v) in values {
-                        rows[row * LANES + lane] = v;
-                    }
-                }
+        let mut finite = vec![true; n.div_ceil(chunk)];
+        {
+            let (rows, oks) = (
+                Chunked::new(&mut floats, chunk * ANCHOR_FLOATS),
+                Chunked::new(&mut finite, 1),
+            );
+            par.for_each(oks.chunks(), |c| {
+                // SAFETY: each chunk index once per loop.
+                let (rows, ok) = unsafe { (rows.chunk(c), oks.chunk(c)) };
+                let order = &order[c * chunk..((c + 1) * chunk).min(n)];
+                ok[0] = rows
+                    .chunks_mut(LANES * ANCHOR_FLOATS)
+                    .zip(order.chunks(LANES))
+                    .fold(true, |ok, (rows, order)| {
+                        ok & slice_anchors(rows, anchors, order)
+                    });
             });
-        Self { floats, n }
+        }
+        finite.iter().all(|&ok| ok).then_some(Self { floats, n })
     }
 
     /// Vertices.
@@ -1974,7 +1997,7 @@ mod tests {
             system.to_internal(&ext),
             system.to_internal(&pinned),
         );
-        let sliced = SlicedAnchors::new(&anchors, &system.order);
+        let sliced = SlicedAnchors::finite(&anchors, &system.order, Par::Pool).unwrap();
         let w = weights(&pi);
         // The gather with and without a step's direction `d` must both reproduce the reference;
         // with it, `Σ r·d` too.
@@ -2316,7 +2339,7 @@ mod tests {
         let (system, _, anchors, _, _) = net();
         let n = system.sell.n;
         assert!(n % LANES != 0, "the test wants a partial last slice");
-        let sliced = SlicedAnchors::new(&anchors, &system.order);
+        let sliced = SlicedAnchors::finite(&anchors, &system.order, Par::Pool).unwrap();
         assert_eq!(sliced.len(), n);
         for (i, &o) in system.order.iter().enumerate() {
             assert_eq!(sliced.get(i), anchors[o as usize], "internal vertex {i}");
@@ -2349,7 +2372,7 @@ mod tests {
         let sell = &system.sell;
         let xi = system.to_internal(&x);
         let ai = system.to_internal(&anchors);
-        let sliced = SlicedAnchors::new(&anchors, &system.order);
+        let sliced = SlicedAnchors::finite(&anchors, &system.order, Par::Pool).unwrap();
         let d: Vec<Vec3> = (0..sell.n)
             .map(|i| Vec3::new((i as f32 * 0.7).sin(), (i as f32 * 0.3).cos(), 0.2) * 1e-3)
             .collect();

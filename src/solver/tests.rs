@@ -375,6 +375,52 @@ fn bad_inputs_are_errors() {
             vertex: 1
         })
     );
+    // Over several chunks: the first non-finite position, then the first non-finite anchor
+    // (the caller's index), whichever float of it.
+    let rest: Vec<Vec3> = (0..3000)
+        .map(|i| Vec3::new(i as f32 * 0.01, 0.0, 0.0))
+        .collect();
+    let edges: Vec<[u32; 2]> = (0..2999).map(|i| [i, i + 1]).collect();
+    let s = SpringSystem::new(&rest, &edges, &[1.0; 2999], &[0.01; 2999]).unwrap();
+    let mut x = rest.clone();
+    x[2900].z = f32::INFINITY;
+    x[1800].y = f32::NAN;
+    let anchor = VertexAnchor {
+        target: Vec3::ZERO,
+        normal: Vec3::Z,
+        k_normal: 1.0,
+        k_tangent: 1.0,
+    };
+    let mut anchors = vec![anchor; 3000];
+    let loads = Loads {
+        anchors: Some(&anchors),
+        ..Default::default()
+    };
+    let cfg = RelaxConfig::default();
+    let err = s.relax(&mut x, &loads, &cfg).unwrap_err();
+    assert_eq!(
+        err,
+        SolverError::NonFinite {
+            what: "position",
+            vertex: 1800
+        }
+    );
+    let mut x = rest.clone();
+    anchors[2600].target.x = f32::NAN;
+    anchors[2500].k_tangent = f32::NEG_INFINITY;
+    let loads = Loads {
+        anchors: Some(&anchors),
+        ..Default::default()
+    };
+    let err = s.relax(&mut x, &loads, &cfg).unwrap_err();
+    assert_eq!(
+        err,
+        SolverError::NonFinite {
+            what: "anchor",
+            vertex: 2500
+        }
+    );
+    assert_eq!(x, rest, "nothing moved");
 }
 
 /// The total energy at `x` in f64 straight from the definition (independent of the kernels).
@@ -788,7 +834,7 @@ fn a_gather_after_a_few_vertices_moved_equals_a_whole_one_bit_for_bit() {
     let chunks = kernels::chunks(n);
     assert!(chunks >= 5);
     let (xi, ext) = (s.to_internal(&x), s.to_internal(&forces));
-    let sliced = SlicedAnchors::new(&anchors, &s.order);
+    let sliced = SlicedAnchors::finite(&anchors, &s.order, Par::Pool).unwrap();
     let frame = s.frame(Some(&ext), Some(&sliced), Par::Pool);
     let w = frame.inverse_diagonal(&vec![false; n]);
     let d: Vec<Vec3> = (0..n)
