@@ -1481,6 +1481,18 @@ fn direction_chunk_avx2(
     direction_chunk(avx2::Avx2, d, r, w, beta, reach)
 }
 
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma,avx512f,avx512vl")]
+fn direction_chunk_avx512(
+    d: &mut [Vec3],
+    r: &[Vec3],
+    w: &[f32],
+    beta: f32,
+    reach: &mut [f32],
+) -> f64 {
+    direction_chunk(avx512::Avx512, d, r, w, beta, reach)
+}
+
 /// `d = w·r + β d` over one chunk, returning `Σ r·d` in vertex order (see
 /// [`super::kernels::update_direction`]).
 pub(crate) fn direction(
@@ -1493,8 +1505,11 @@ pub(crate) fn direction(
 ) -> f64 {
     match isa {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only returned after the AVX2 check.
-        Isa::Avx2 | Isa::Avx512 => unsafe { direction_chunk_avx2(d, r, w, beta, reach) },
+        // SAFETY: `Isa::Avx2` is only returned after the AVX2 check.
+        Isa::Avx2 => unsafe { direction_chunk_avx2(d, r, w, beta, reach) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Isa::Avx512` is only returned after the AVX-512F and VL check.
+        Isa::Avx512 => unsafe { direction_chunk_avx512(d, r, w, beta, reach) },
         _ => direction_chunk(Scalar, d, r, w, beta, reach),
     }
 }
