@@ -1641,55 +1641,44 @@ fn a_projection_names_every_vertex_it_moves() {
     assert!(named_any > 400, "projections moved vertices: {named_any}");
 }
 
-/// The same projection with the trait's default `project_step` (a whole pass after every
-/// step, the last positions copied), for comparison.
-struct Stepless<'a>(&'a mut SkinCollision);
-
-impl Projection for Stepless<'_> {
-    fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool {
-        self.0.project(x, order)
-    }
-
-    fn active_contacts(&self) -> &[ActiveContact] {
-        self.0.active_contacts()
-    }
-
-    fn moved_vertices(&self) -> Option<&[u32]> {
-        self.0.moved_vertices()
-    }
-
-    fn hold(&mut self, held: &[bool]) {
-        self.0.hold(held);
-    }
+/// The same projection without `project_step_deferred`, so that its passes after a step run
+/// after the solver's force gather (not alongside it) and write the positions themselves;
+/// without `project_step` too when `steps` is false (the trait's default: a whole pass after
+/// every step, the last positions copied), for comparison.
+struct AfterTheGather<'a> {
+    inner: &'a mut SkinCollision,
+    steps: bool,
 }
-
-/// The same projection without `project_step_deferred`: its passes after a step run after
-/// the solver's force gather, not alongside it, and write the positions themselves.
-struct AfterTheGather<'a>(&'a mut SkinCollision);
 
 impl Projection for AfterTheGather<'_> {
     fn project(&mut self, x: &mut [Vec3], order: &[u32]) -> bool {
-        self.0.project(x, order)
+        self.inner.project(x, order)
     }
 
     fn project_step(&mut self, x: &mut [Vec3], order: &[u32], step: &Step<'_>) -> bool {
-        self.0.project_step(x, order, step)
+        if self.steps {
+            self.inner.project_step(x, order, step)
+        } else {
+            self.inner.project(x, order)
+        }
     }
 
     fn settled(&mut self, x: &[Vec3]) {
-        self.0.settled(x);
+        if self.steps {
+            self.inner.settled(x);
+        }
     }
 
     fn active_contacts(&self) -> &[ActiveContact] {
-        self.0.active_contacts()
+        self.inner.active_contacts()
     }
 
     fn moved_vertices(&self) -> Option<&[u32]> {
-        self.0.moved_vertices()
+        self.inner.moved_vertices()
     }
 
     fn hold(&mut self, held: &[bool]) {
-        self.0.hold(held);
+        self.inner.hold(held);
     }
 }
 
@@ -1712,8 +1701,20 @@ fn passes_after_a_step_skip_blocks_and_answer_as_whole_passes() {
     };
     for solve in 0..3 {
         let a = stepped.relax(&config, &mut with_steps);
-        let b = whole.relax(&config, &mut Stepless(&mut without));
-        let c = after.relax(&config, &mut AfterTheGather(&mut after_gather));
+        let b = whole.relax(
+            &config,
+            &mut AfterTheGather {
+                inner: &mut without,
+                steps: false,
+            },
+        );
+        let c = after.relax(
+            &config,
+            &mut AfterTheGather {
+                inner: &mut after_gather,
+                steps: true,
+            },
+        );
         assert_eq!(format!("{a:?}"), format!("{b:?}"), "solve {solve}");
         assert_eq!(format!("{a:?}"), format!("{c:?}"), "solve {solve}");
         assert_eq!(bits(&stepped.x), bits(&whole.x), "solve {solve}");
