@@ -159,12 +159,7 @@ impl SkinBuilder {
         let anchors = match (self.anchors, self.rest_anchors) {
             (Some(a), _) => {
                 check_len("anchors", a.len())?;
-                if let Some(vertex) = a.iter().position(|a| {
-                    !(a.target.is_finite()
-                        && a.normal.is_finite()
-                        && a.k_normal.is_finite()
-                        && a.k_tangent.is_finite())
-                }) {
+                if let Some(vertex) = a.iter().position(|a| !a.is_finite()) {
                     return Err(SkinError::NonFinite {
                         what: "anchor",
                         vertex,

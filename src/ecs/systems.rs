@@ -299,14 +299,7 @@ fn relax_one(
         }
         quarantine(NonFiniteInput::Position, v, diagnostics);
     }
-    let bad_anchor = anchors.and_then(|a| {
-        a.iter().position(|a| {
-            !(a.target.is_finite()
-                && a.normal.is_finite()
-                && a.k_normal.is_finite()
-                && a.k_tangent.is_finite())
-        })
-    });
+    let bad_anchor = anchors.and_then(|a| a.iter().position(|a| !a.is_finite()));
     // Positions were rolled back above and can be solved from; bad anchors or forces cannot.
     let mut blocked = false;
     if let Some(v) = bad_anchor {

@@ -99,6 +99,14 @@ pub struct VertexAnchor {
 }
 
 impl VertexAnchor {
+    /// Whether every float of the anchor is finite (a solve refuses one that is not).
+    pub fn is_finite(&self) -> bool {
+        self.target.is_finite()
+            && self.normal.is_finite()
+            && self.k_normal.is_finite()
+            && self.k_tangent.is_finite()
+    }
+
     #[cfg_attr(
         not(test),
         expect(
@@ -880,15 +888,9 @@ impl SpringSystem {
                 check_len("anchors", a.len(), n)?;
                 let sliced = SlicedAnchors::finite(a, &self.order, par);
                 let Some(sliced) = sliced else {
-                    let bad = |a: &VertexAnchor| {
-                        !(a.target.is_finite()
-                            && a.normal.is_finite()
-                            && a.k_normal.is_finite()
-                            && a.k_tangent.is_finite())
-                    };
                     return Err(SolverError::NonFinite {
                         what: "anchor",
-                        vertex: a.iter().position(bad).unwrap_or(0),
+                        vertex: a.iter().position(|a| !a.is_finite()).unwrap_or(0),
                     });
                 };
                 Some(sliced)
